@@ -1,0 +1,26 @@
+# Set-up is part of every target: the virtual environment .venv is (re)built when it is missing
+# or older than pyproject.toml.
+PYTHON ?= $(shell command -v python3.11 || command -v python3)
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+
+.PHONY: test run bench clean-venv
+
+$(STAMP): pyproject.toml CMakeLists.txt $(wildcard nca_qd/sim/rhcr/src/*)
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --upgrade --quiet pip
+	$(PY) -m pip install --quiet -e '.[dev]'
+	touch $(STAMP)
+
+test: $(STAMP)
+	$(PY) -m pytest tests
+
+run: $(STAMP)
+	$(PY) -m experiments.run domain=maze
+
+bench: $(STAMP)
+	$(PY) -m benchmarks.run_all
+
+clean-venv:
+	rm -rf $(VENV)

@@ -1,0 +1,64 @@
+"""Shared plumbing for entry points: config composition, one-line errors, exit codes.
+
+Entry points compose their Hydra config with :func:`compose_config` (Hydra's compose API rather
+than ``@hydra.main``, so that a wrong override becomes one line and exit status 2 instead of a
+Hydra traceback) and wrap their body in :func:`main_guard`.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+from pathlib import Path
+from typing import Callable, Sequence
+
+from omegaconf import DictConfig, OmegaConf
+
+from nca_qd.errors import NcaQdError
+
+CONF_DIR = Path(__file__).resolve().parent / "conf"
+EXIT_USAGE = 2
+EXIT_INTERRUPTED = 130
+
+log = logging.getLogger("nca_qd")
+
+
+def compose_config(config_name: str, overrides: Sequence[str]) -> DictConfig:
+    """Compose ``experiments/conf/<config_name>.yaml`` with ``key=value`` overrides.
+
+    Hydra and OmegaConf errors (unknown group option, wrong type, missing key) become
+    :class:`NcaQdError` with Hydra's own one-line explanation.
+    """
+    from hydra import compose, initialize_config_dir
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    try:
+        with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+            cfg = compose(config_name=config_name, overrides=list(overrides))
+        OmegaConf.resolve(cfg)
+    except (HydraException, OmegaConfBaseException) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise NcaQdError(f"bad configuration: {first}") from None
+    return cfg
+
+
+def main_guard(body: Callable[[list[str]], int | None]) -> Callable[[], None]:
+    """Run ``body(argv)``; user errors print one line to stderr and exit 2, Ctrl-C exits 130."""
+
+    def wrapped() -> None:
+        logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s: %(message)s",
+                            datefmt="%H:%M:%S")
+        logging.getLogger("nca_qd").setLevel(logging.INFO)
+        try:
+            code = body(sys.argv[1:])
+        except NcaQdError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            sys.exit(EXIT_USAGE)
+        except KeyboardInterrupt:
+            print("interrupted: the last checkpoint is intact; resume with resume=<run dir>",
+                  file=sys.stderr)
+            sys.exit(EXIT_INTERRUPTED)
+        sys.exit(code or 0)
+
+    return wrapped

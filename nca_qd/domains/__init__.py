@@ -1,0 +1,32 @@
+"""Domains: tiles, sizes, seeds, measures and scoring of each environment kind.
+
+A new domain is a new module here plus one line in :data:`DOMAINS` and a YAML file in
+``experiments/conf/domain/``.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any, Mapping
+
+from nca_qd.domains.base import Domain, EvalBatch, Evaluator
+from nca_qd.errors import NcaQdError
+
+# Domain config name -> "module:Class". Imported lazily so one domain's dependencies (HiGHS,
+# the compiled simulator) are not loaded for another.
+DOMAINS: dict[str, str] = {
+    "maze": "nca_qd.domains.maze:MazeDomain",
+}
+
+
+def make_domain(cfg: Mapping[str, Any]) -> Domain:
+    """Build the domain named by ``cfg['name']`` from its config."""
+    name = cfg.get("name")
+    if name not in DOMAINS:
+        raise NcaQdError(f"unknown domain {name!r} (known: {', '.join(sorted(DOMAINS))})")
+    module_name, cls_name = DOMAINS[name].split(":")
+    cls = getattr(importlib.import_module(module_name), cls_name)
+    return cls(cfg)
+
+
+__all__ = ["DOMAINS", "Domain", "EvalBatch", "Evaluator", "make_domain"]

@@ -1,0 +1,230 @@
+"""A QD run on disk: configuration, metrics, checkpoints, archives and pictures.
+
+A run directory holds
+
+* ``config.yaml``: the resolved configuration (a resumed run reuses it);
+* ``metrics.csv``: one row per iteration (result archive's ``qd_score``, ``coverage``,
+  ``best_objective``; the optimisation archive's as ``opt_*``; ``evaluations``, ``wall_seconds``);
+* ``checkpoint.msgpack``: the whole QD state (archives, emitters, key, counters), written
+  atomically every ``qd.checkpoint_every`` iterations, at the end and on Ctrl-C;
+* ``archive_result.npz`` / ``archive_opt.npz``: plain arrays of both archives;
+* pictures: ``archive_result.png``, ``archive_opt.png``, ``curves.png``, ``best_train.png`` and
+  ``best_eval.png`` (the same generators at the training and the evaluation size).
+
+Everything is deterministic given ``seed``: a resumed run replays from its last checkpoint and
+ends where an uninterrupted run ends.
+"""
+
+from __future__ import annotations
+
+import csv
+import logging
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+from omegaconf import DictConfig, OmegaConf
+
+from nca_qd.domains import Domain, make_domain
+from nca_qd.errors import NcaQdError
+from nca_qd.io import atomic_write_text, load_pytree, save_npz, save_pytree
+from nca_qd.pipeline import generate, make_generator, make_objective
+from nca_qd.qd.loop import QDLoop, QDState, archive_arrays, archive_spec, make_emitter
+
+log = logging.getLogger("nca_qd.run")
+
+METRIC_COLUMNS = [
+    "iteration", "evaluations", "qd_score", "coverage", "best_objective", "n_elites",
+    "opt_qd_score", "opt_coverage", "opt_best_objective", "batch_best", "batch_added",
+    "step_seconds", "wall_seconds",
+]
+CONFIG_FILE, METRICS_FILE, CHECKPOINT_FILE = "config.yaml", "metrics.csv", "checkpoint.msgpack"
+
+
+def validate_config(cfg: DictConfig) -> None:
+    """Check the numbers a user may override; raise one clear :class:`NcaQdError`."""
+
+    def positive_int(path: str) -> None:
+        value = OmegaConf.select(cfg, path)
+        if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
+            raise NcaQdError(f"{path} must be a positive integer, got {value!r}")
+
+    def positive_float(path: str) -> None:
+        value = OmegaConf.select(cfg, path)
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or value <= 0:
+            raise NcaQdError(f"{path} must be a positive number, got {value!r}")
+
+    for p in ("qd.n_evals", "qd.n_emitters", "qd.batch_size", "qd.checkpoint_every",
+              "domain.nca_iters.train", "domain.nca_iters.eval"):
+        positive_int(p)
+    positive_float("qd.sigma0")
+    if not isinstance(cfg.seed, int) or isinstance(cfg.seed, bool):
+        raise NcaQdError(f"seed must be an integer, got {cfg.seed!r}")
+    for which in ("train", "eval"):
+        size = OmegaConf.select(cfg, f"domain.size.{which}")
+        if (size is None or len(size) != 2
+                or not all(isinstance(s, int) and not isinstance(s, bool) and s > 1 for s in size)):
+            raise NcaQdError(f"domain.size.{which} must be two integers > 1, got {size!r}")
+    lr = OmegaConf.select(cfg, "qd.archive.learning_rate")
+    if not isinstance(lr, (int, float)) or not 0 <= lr <= 1:
+        raise NcaQdError(f"qd.archive.learning_rate must be in [0, 1], got {lr!r}")
+
+
+class Experiment:
+    """Builds domain, generator and QD loop from a config and runs it in a directory."""
+
+    def __init__(self, cfg: DictConfig, run_dir: Path):
+        validate_config(cfg)
+        self.cfg, self.run_dir = cfg, Path(run_dir)
+        self.domain: Domain = make_domain(cfg.domain)
+        self.generator = make_generator(self.domain)
+        emitter = make_emitter(cfg.algo, cfg.qd, self.generator.n_params)
+        spec = archive_spec(cfg.algo.name, cfg.domain, cfg.qd)
+        self.loop = QDLoop(emitter, make_objective(self.domain, self.generator),
+                           self.generator.n_params, spec)
+        self.n_iterations = math.ceil(cfg.qd.n_evals / self.loop.batch_size)
+
+    # --- state on disk -------------------------------------------------------------------
+    def initial_state(self) -> QDState:
+        return self.loop.init(jax.random.PRNGKey(self.cfg.seed))
+
+    def save_checkpoint(self, state: QDState, wall: float) -> None:
+        save_pytree(self.run_dir / CHECKPOINT_FILE,
+                    {"state": state, "wall_seconds": np.float64(wall)})
+
+    def load_checkpoint(self) -> tuple[QDState, float]:
+        path = self.run_dir / CHECKPOINT_FILE
+        if not path.is_file():
+            raise NcaQdError(f"{self.run_dir}: no checkpoint to resume from ({CHECKPOINT_FILE} missing)")
+        tree = load_pytree(path, {"state": self.initial_state(), "wall_seconds": np.float64(0)})
+        return tree["state"], float(tree["wall_seconds"])
+
+    def _metrics_rows(self, upto: int) -> list[dict[str, str]]:
+        path = self.run_dir / METRICS_FILE
+        if not path.is_file():
+            return []
+        with path.open() as fh:
+            return [r for r in csv.DictReader(fh) if int(r["iteration"]) <= upto]
+
+    # --- the run -------------------------------------------------------------------------
+    def run(self, resume: bool = False) -> QDState:
+        """Run (or continue) until ``qd.n_evals`` evaluations; returns the final state."""
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(self.run_dir / CONFIG_FILE, OmegaConf.to_yaml(self.cfg))
+        if resume:
+            state, wall = self.load_checkpoint()
+            log.info("resuming %s at iteration %d", self.run_dir, int(state.iteration))
+        else:
+            state, wall = self.initial_state(), 0.0
+        rows = self._metrics_rows(int(state.iteration))
+        metrics_path = self.run_dir / METRICS_FILE
+        with metrics_path.open("w", newline="") as fh:  # rewrite: drops rows past the checkpoint
+            writer = csv.DictWriter(fh, fieldnames=METRIC_COLUMNS)
+            writer.writeheader()
+            writer.writerows(rows)
+        state = self._iterate(state, wall)
+        self.write_outputs(state)
+        return state
+
+    def _iterate(self, state: QDState, wall: float) -> QDState:
+        from tqdm import tqdm
+
+        cfg = self.cfg
+        start_iter = int(state.iteration)
+        bar = tqdm(total=self.n_iterations, initial=start_iter, disable=not cfg.qd.progress,
+                   desc=f"{cfg.algo.name} {cfg.domain.name}", unit="it", dynamic_ncols=True)
+        last_saved = start_iter
+        try:
+            with (self.run_dir / METRICS_FILE).open("a", newline="") as fh:
+                writer = csv.DictWriter(fh, fieldnames=METRIC_COLUMNS, extrasaction="ignore")
+                while int(state.iteration) < self.n_iterations:
+                    t0 = time.perf_counter()
+                    new_state, metrics, _ = self.loop.step(state)
+                    state = new_state  # only a completed step replaces the state
+                    wall += time.perf_counter() - t0
+                    metrics["wall_seconds"] = wall
+                    writer.writerow(metrics)
+                    fh.flush()
+                    bar.update(1)
+                    bar.set_postfix(qd=f"{metrics['qd_score']:.4g}",
+                                    cov=f"{metrics['coverage']:.3f}")
+                    it = metrics["iteration"]
+                    if it % cfg.qd.checkpoint_every == 0 or it == self.n_iterations:
+                        self.save_checkpoint(state, wall)
+                        last_saved = it
+                        log.info("iter %d/%d evals %d qd_score %.4g coverage %.4f best %.4g "
+                                 "(%.3f s/iter)", it, self.n_iterations, metrics["evaluations"],
+                                 metrics["qd_score"], metrics["coverage"],
+                                 metrics["best_objective"], metrics["step_seconds"])
+        except KeyboardInterrupt:
+            if int(state.iteration) != last_saved:
+                self.save_checkpoint(state, wall)
+            bar.close()
+            raise
+        bar.close()
+        return state
+
+    # --- outputs -------------------------------------------------------------------------
+    def best_elites(self, state: QDState, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """Up to ``n`` elites of the result archive: the best objective first, spread over cells."""
+        arr = archive_arrays(state.res_archive)
+        occ = np.flatnonzero(np.isfinite(arr["objective"]))
+        if occ.size == 0:
+            return np.empty((0, arr["genotypes"].shape[1])), np.empty((0,), int)
+        order = occ[np.lexsort((occ, -arr["objective"][occ]))]
+        top = order[arr["objective"][order] == arr["objective"][order[0]]]
+        if top.size >= n:  # many ties (the maze's binary objective): spread over the archive
+            pick = top[np.linspace(0, top.size - 1, n).round().astype(int)]
+        else:
+            pick = order[:n]
+        return arr["genotypes"][pick], pick
+
+    def write_outputs(self, state: QDState) -> None:
+        """Archives as ``.npz`` and, unless disabled, every picture."""
+        save_npz(self.run_dir / "archive_result.npz", archive_arrays(state.res_archive))
+        save_npz(self.run_dir / "archive_opt.npz", archive_arrays(state.opt_archive))
+        if self.cfg.output.pictures:
+            self.write_pictures(state)
+
+    def write_pictures(self, state: QDState) -> None:
+        from nca_qd import viz
+
+        d = self.domain
+        names = list(self.cfg.domain.measures.names)
+        spec = self.loop.spec
+        for which, archive in (("result", state.res_archive), ("opt", state.opt_archive)):
+            viz.archive_heatmap(self.run_dir / f"archive_{which}.png",
+                                np.asarray(archive.fitnesses[:, 0]), spec.cells, spec.ranges,
+                                names, title=f"{which} archive ({self.cfg.algo.name}, {d.name})")
+        viz.metric_curves(self.run_dir / "curves.png", self.run_dir / METRICS_FILE)
+        genotypes, cells = self.best_elites(state, int(self.cfg.output.n_best))
+        if len(genotypes) == 0:
+            return
+        for which in ("train", "eval"):
+            regions = generate(d, self.generator, genotypes, which)
+            layouts = [d.assemble(r) for r in regions]
+            h, w = layouts[0].shape
+            viz.render_layouts(self.run_dir / f"best_{which}.png", layouts, d.layout_tiles,
+                               d.palette, [f"cell {c} ({h}x{w})" for c in cells])
+
+
+def load_run_config(run_dir: Path) -> DictConfig:
+    """The saved configuration of a run directory (for ``resume=``)."""
+    path = Path(run_dir) / CONFIG_FILE
+    if not Path(run_dir).is_dir():
+        raise NcaQdError(f"resume directory {run_dir} does not exist")
+    if not path.is_file():
+        raise NcaQdError(f"{run_dir} is not a run directory ({CONFIG_FILE} missing)")
+    return OmegaConf.load(path)  # type: ignore[return-value]
+
+
+def load_archive(run_dir: str | Path, which: str = "result") -> dict[str, Any]:
+    """A run's archive as numpy arrays (genotypes, objective, measures, centroids, ...)."""
+    path = Path(run_dir) / f"archive_{which}.npz"
+    if not path.is_file():
+        raise NcaQdError(f"{path} not found (has the run written its outputs yet?)")
+    with np.load(path) as data:
+        return {k: data[k] for k in data.files}

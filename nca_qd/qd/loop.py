@@ -1,0 +1,161 @@
+"""The QD loop: ask -> evaluate -> add to both archives -> tell, state in, state out.
+
+Domain-agnostic: it searches over flat parameter vectors with any batched objective
+``f(solutions [b, d], key) -> EvalBatch`` (objective, measures, optionally a separate
+result objective and a validity mask). ``ask`` and ``add + tell`` are each one jitted call;
+the evaluation between them is the domain's (a jitted JAX function for the maze, a host-side
+pipeline of repair and simulation for the warehouse).
+
+QD-score: sum over occupied cells of ``f - offset`` where ``offset`` is the lowest objective the
+domain can produce (``objective_range[0]`` in its config), so an empty cell counts 0 and every
+elite counts a non-negative amount.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any, Callable, Sequence
+
+import chex
+import flax.struct
+import jax
+import jax.numpy as jnp
+import numpy as np
+from qdax.core.containers.mapelites_repertoire import MapElitesRepertoire
+
+from nca_qd.domains.base import EvalBatch
+from nca_qd.qd.archive import ThresholdRepertoire, archive_stats, grid_cell_indices
+
+Objective = Callable[[jax.Array, jax.Array], EvalBatch]
+
+
+class QDState(flax.struct.PyTreeNode):
+    """Everything a run needs to continue: archives, emitter state, key and counters."""
+
+    opt_archive: ThresholdRepertoire
+    res_archive: ThresholdRepertoire
+    emitter_state: Any
+    key: jax.Array
+    iteration: jax.Array
+    evaluations: jax.Array
+
+
+@dataclass(frozen=True)
+class ArchiveSpec:
+    """Grid and thresholds shared by both archives."""
+
+    cells: Sequence[int]
+    ranges: Sequence[Sequence[float]]
+    learning_rate: float = 1.0
+    threshold_min: float = -float("inf")
+    qd_offset: float = 0.0
+
+
+class QDLoop:
+    """Runs one QD algorithm (an emitter, see :mod:`nca_qd.qd.emitters`) on an objective."""
+
+    def __init__(self, emitter: Any, objective: Objective, dim: int, spec: ArchiveSpec):
+        self.emitter, self.objective, self.dim, self.spec = emitter, objective, dim, spec
+        self.batch_size = emitter.batch_size
+        self._ask = jax.jit(self._ask_impl)
+        self._update = jax.jit(self._update_impl)
+
+    def init(self, key: jax.Array) -> QDState:
+        k_emit, k_run = jax.random.split(key)
+        return QDState(
+            opt_archive=ThresholdRepertoire.create(self.dim, self.spec.cells, self.spec.ranges,
+                                                   self.spec.learning_rate,
+                                                   self.spec.threshold_min),
+            res_archive=ThresholdRepertoire.create(self.dim, self.spec.cells, self.spec.ranges),
+            emitter_state=self.emitter.init(k_emit),
+            key=k_run,
+            iteration=jnp.zeros((), jnp.int32),
+            evaluations=jnp.zeros((), jnp.int32),
+        )
+
+    def _ask_impl(self, state: QDState):
+        key, k_ask, k_eval = jax.random.split(state.key, 3)
+        solutions, emitter_state = self.emitter.ask(state.emitter_state, state.opt_archive, k_ask)
+        return solutions, k_eval, state.replace(key=key, emitter_state=emitter_state)
+
+    def _update_impl(self, state: QDState, solutions, objective, result_objective, measures, valid):
+        chex.assert_shape(solutions, (self.batch_size, self.dim))
+        chex.assert_shape([objective, result_objective, valid], (self.batch_size,))
+        chex.assert_shape(measures, (self.batch_size, len(self.spec.cells)))
+        key, k_tell = jax.random.split(state.key)
+        f_opt = jnp.where(valid, objective, -jnp.inf).astype(jnp.float32)
+        f_res = jnp.where(valid, result_objective, -jnp.inf).astype(jnp.float32)
+        measures = measures.astype(jnp.float32)
+        cells = grid_cell_indices(measures, self.spec.cells, self.spec.ranges)
+        opt_archive, info = state.opt_archive.add_with_info(solutions, measures, f_opt, cells)
+        res_archive, _ = state.res_archive.add_with_info(solutions, measures, f_res, cells)
+        emitter_state = self.emitter.tell(state.emitter_state, opt_archive, solutions, f_opt,
+                                          info, k_tell)
+        new = state.replace(opt_archive=opt_archive, res_archive=res_archive,
+                            emitter_state=emitter_state, key=key,
+                            iteration=state.iteration + 1,
+                            evaluations=state.evaluations + self.batch_size)
+        offset = self.spec.qd_offset
+        res, opt = archive_stats(res_archive, offset), archive_stats(opt_archive, offset)
+        metrics = {**res, **{f"opt_{k}": v for k, v in opt.items()},
+                   "batch_best": jnp.max(f_res), "batch_added": jnp.sum(info.status > 0)}
+        return new, metrics
+
+    def step(self, state: QDState) -> tuple[QDState, dict[str, float], EvalBatch]:
+        """One iteration; returns the new state, scalar metrics and the batch's evaluation."""
+        t0 = time.perf_counter()
+        solutions, k_eval, state = self._ask(state)
+        ev = self.objective(solutions, k_eval)
+        state, metrics = self._update(state, solutions, jnp.asarray(ev.objective),
+                                      jnp.asarray(ev.result_objective), jnp.asarray(ev.measures),
+                                      jnp.asarray(ev.valid))
+        out = {k: float(v) for k, v in jax.device_get(metrics).items()}
+        out["iteration"] = int(state.iteration)
+        out["evaluations"] = int(state.evaluations)
+        out["step_seconds"] = time.perf_counter() - t0
+        return state, out, ev
+
+
+def make_emitter(algo_cfg: Any, qd_cfg: Any, dim: int):
+    """Build the emitter of ``algo.name`` (cma_mae | map_elites | cma_es) from configs."""
+    from nca_qd.errors import NcaQdError
+    from nca_qd.qd.emitters import ESEmitters, IsoLineEmitter
+
+    name = algo_cfg["name"]
+    n, b, sigma0 = int(qd_cfg["n_emitters"]), int(qd_cfg["batch_size"]), float(qd_cfg["sigma0"])
+    if name == "cma_mae":
+        return ESEmitters(n, b, dim, sigma0, ranking="improvement",
+                          restart_rule=algo_cfg.get("restart_rule", "no_improvement"))
+    if name == "cma_es":
+        return ESEmitters(n, b, dim, sigma0, ranking="objective", restart_rule="basic")
+    if name == "map_elites":
+        return IsoLineEmitter(n * b, dim, sigma0, float(algo_cfg["iso_sigma"]),
+                              float(algo_cfg["line_sigma"]), int(algo_cfg["n_initial"]))
+    raise NcaQdError(f"unknown algorithm {name!r} (known: cma_mae, map_elites, cma_es)")
+
+
+def archive_spec(algo_name: str, domain_cfg: Any, qd_cfg: Any) -> ArchiveSpec:
+    """CMA-MAE uses the configured learning rate and threshold_min; the baselines a plain archive."""
+    meas = domain_cfg["measures"]
+    soft = algo_name == "cma_mae"
+    return ArchiveSpec(
+        cells=[int(c) for c in meas["cells"]],
+        ranges=[[float(r[0]), float(r[1])] for r in meas["ranges"]],
+        learning_rate=float(qd_cfg["archive"]["learning_rate"]) if soft else 1.0,
+        threshold_min=float(qd_cfg["archive"]["threshold_min"]) if soft else -float("inf"),
+        qd_offset=float(domain_cfg["objective_range"][0]),
+    )
+
+
+def archive_arrays(archive: MapElitesRepertoire) -> dict[str, np.ndarray]:
+    """Plain numpy arrays of an archive (for ``.npz`` files and notebooks)."""
+    out = {
+        "genotypes": np.asarray(archive.genotypes),
+        "objective": np.asarray(archive.fitnesses[:, 0]),
+        "measures": np.asarray(archive.descriptors),
+        "centroids": np.asarray(archive.centroids),
+    }
+    if isinstance(archive, ThresholdRepertoire):
+        out["thresholds"] = np.asarray(archive.thresholds)
+    return out
