@@ -1,0 +1,110 @@
+#include "astar.hpp"
+
+#include <algorithm>
+#include <functional>
+
+namespace rhcr {
+
+bool SpaceTimeAStar::seen(int t, int gi, int cell) {
+  const size_t idx = (static_cast<size_t>(t) * (goal_count_ + 1) + gi) * grid_.cells() + cell;
+  if (visited_[idx] == visit_stamp_) return true;
+  visited_[idx] = visit_stamp_;
+  return false;
+}
+
+void SpaceTimeAStar::push(int cell, int t, int gi, int g, int parent) {
+  const int f = g + heuristic(cell, gi);
+  nodes_.push_back({cell, t, gi, g, f, parent});
+  // Min-heap on f; ties prefer larger g (deeper nodes), then the older node (determinism).
+  heap_.push_back({{f, -g}, static_cast<int>(nodes_.size()) - 1});
+  std::push_heap(heap_.begin(), heap_.end(), std::greater<>());
+}
+
+bool SpaceTimeAStar::plan(const ReservationTable& rt, const AgentQuery& q, int* out_path, int& cost) {
+  query_ = &q;
+  goal_count_ = q.goals.size();
+  const int Q = static_cast<int>(goal_count_);
+
+  // suffix_[i]: cost of goal i's dwell plus all later legs and dwells (true distances).
+  suffix_.assign(Q + 1, 0);
+  for (int i = Q - 1; i >= 0; --i)
+    suffix_[i] = q.goals[i].dwell + (i + 1 < Q ? q.dist[i + 1][q.goals[i].cell] + suffix_[i + 1] : 0);
+
+  const size_t need = static_cast<size_t>(window_ + 1) * (Q + 1) * grid_.cells();
+  if (visited_.size() < need) {
+    visited_.assign(need, 0);
+    visit_stamp_ = 0;
+  }
+  if (++visit_stamp_ == 0) {
+    std::fill(visited_.begin(), visited_.end(), 0);
+    visit_stamp_ = 1;
+  }
+  nodes_.clear();
+  heap_.clear();
+
+  // The root never completes a goal: goals count on arrival steps (times >= 1), and a
+  // dwell already in progress continues through the root's own macro below.
+  seen(0, 0, q.start);
+  push(q.start, 0, 0, 0, -1);
+
+  int64_t budget = max_expansions;
+  while (!heap_.empty()) {
+    std::pop_heap(heap_.begin(), heap_.end(), std::greater<>());
+    const int id = heap_.back().second;
+    heap_.pop_back();
+    const Node n = nodes_[id];
+    ++expansions_;
+    if (--budget < 0) return false;
+
+    // Terminal 1: the window's end. Beyond it nothing is reserved, so g + h is exact.
+    bool done = n.t >= window_;
+    // Terminal 2: every goal done, and the agent can hold its cell until the window ends.
+    if (!done && n.gi == Q) {
+      done = true;
+      for (int t = n.t + 1; t <= window_ && done; ++t) done = rt.vertex_free(t, n.cell);
+    }
+    if (done) {
+      cost = n.f;
+      // Reconstruct: every node fills the times after its parent with its cell (a macro
+      // node covers several waits), then hold the final cell to the window's end.
+      for (int t = n.t; t <= window_; ++t) out_path[t] = n.cell;
+      for (int cur = id; nodes_[cur].parent >= 0; cur = nodes_[cur].parent) {
+        const Node& child = nodes_[cur];
+        const Node& par = nodes_[child.parent];
+        for (int t = par.t + 1; t <= child.t; ++t) out_path[t] = child.cell;
+      }
+      out_path[0] = q.start;
+      return true;
+    }
+
+    // Dwell macro: stay on the current goal's cell for its whole dwell (clipped to the window).
+    // At the root it only continues a dwell in progress (an agent that has not arrived yet
+    // arrives with its first step, like every other agent).
+    const bool root = id == 0;
+    if (n.gi < Q && q.goals[n.gi].cell == n.cell && q.goals[n.gi].dwell > 0 && (!root || q.start_dwell_left > 0)) {
+      const int dwell = root ? q.start_dwell_left : q.goals[n.gi].dwell;
+      const int t_end = std::min(n.t + dwell, window_);
+      bool free = true;
+      for (int t = n.t + 1; t <= t_end && free; ++t) free = rt.vertex_free(t, n.cell);
+      if (free) {
+        const int gi2 = advance(n.cell, n.gi + 1);
+        // A macro that runs past the window is terminal; its g counts the whole dwell.
+        if (n.t + dwell >= window_ || !seen(t_end, gi2, n.cell)) push(n.cell, t_end, gi2, n.g + dwell, id);
+      }
+    }
+
+    // Ordinary successors: wait or move to a 4-neighbour, respecting reservations.
+    const int t1 = n.t + 1;
+    for (int d = 0; d <= kWait; ++d) {
+      const int v = d == kWait ? n.cell : grid_.neighbor(n.cell, d);
+      if (v < 0 || !rt.vertex_free(t1, v)) continue;
+      if (d != kWait && !rt.edge_free(grid_, n.t, n.cell, v)) continue;
+      const int gi2 = advance(v, n.gi);
+      if (seen(t1, gi2, v)) continue;
+      push(v, t1, gi2, n.g + 1, id);
+    }
+  }
+  return false;
+}
+
+}  // namespace rhcr

@@ -1,0 +1,124 @@
+// Single-agent planner of windowed PBS: space-time A* on a reservation table.
+//
+// An agent plans from its current cell through its queue of goals. Only the first `window`
+// timesteps are constrained (conflicts beyond the window are ignored, as in RHCR), so a
+// state at time `window` is terminal and its remaining cost is exactly the heuristic: the
+// sum of true (BFS) distances along the goal queue plus the dwell times still owed.
+//
+// Goal semantics (shared with the executor in rhcr.cpp):
+//   * a goal with dwell 0 is done the moment the agent stands on its cell;
+//   * a goal with dwell d > 0 is done after the agent arrives and then stays d more
+//     timesteps without leaving. A* models this with a "dwell macro" successor (d waits in
+//     one edge); plain moves out of the goal cell stay available, so a blocked dwell never
+//     makes the agent unplannable.
+// An agent that finishes its whole queue inside the window holds its last cell until the
+// window ends, which is only allowed if no higher-priority agent needs that cell.
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include "grid.hpp"
+
+namespace rhcr {
+
+struct Goal {
+  int cell;
+  int dwell;
+};
+
+// Cells occupied by higher-priority agents at times 0..window, for vertex and swap checks.
+class ReservationTable {
+ public:
+  ReservationTable(int cells, int window)
+      : cells_(cells), window_(window), stamp_((window + 1) * cells, 0), came_((window + 1) * cells, 0) {}
+
+  void clear() {
+    if (++current_ == 0) {  // wrapped: really reset
+      std::fill(stamp_.begin(), stamp_.end(), 0);
+      current_ = 1;
+    }
+  }
+
+  // Reserve an agent's path (window + 1 cells, times 0..window).
+  void add_path(const Grid& grid, const int* path) {
+    for (int t = 0; t <= window_; ++t) {
+      const int idx = t * cells_ + path[t];
+      if (stamp_[idx] != current_) {
+        stamp_[idx] = current_;
+        came_[idx] = 0;
+      }
+      if (t > 0 && path[t] != path[t - 1]) came_[idx] |= 1u << grid.direction(path[t], path[t - 1]);
+    }
+  }
+
+  bool vertex_free(int t, int cell) const { return stamp_[t * cells_ + cell] != current_; }
+
+  // May an agent move from u (time t) to v (time t+1)? Not if someone at u at t+1 came from v.
+  bool edge_free(const Grid& grid, int t, int u, int v) const {
+    const int idx = (t + 1) * cells_ + u;
+    return stamp_[idx] != current_ || !(came_[idx] & (1u << grid.direction(u, v)));
+  }
+
+ private:
+  int cells_, window_;
+  std::vector<uint32_t> stamp_;
+  std::vector<uint8_t> came_;
+  uint32_t current_ = 1;
+};
+
+// What one agent must plan: start cell, remaining dwell if it is mid-dwell on goals[0]
+// (0 otherwise), and its goal queue with a distance table per goal.
+struct AgentQuery {
+  int start = 0;
+  int start_dwell_left = 0;
+  std::vector<Goal> goals;
+  std::vector<const uint16_t*> dist;
+};
+
+class SpaceTimeAStar {
+ public:
+  SpaceTimeAStar(const Grid& grid, int window) : grid_(grid), window_(window) {}
+
+  // Plans into out_path[0..window]; returns false if no path exists (or the expansion
+  // budget is exhausted). `cost` is the path's estimated total cost g + h at its end.
+  bool plan(const ReservationTable& rt, const AgentQuery& q, int* out_path, int& cost);
+
+  int64_t expansions() const { return expansions_; }
+  int max_expansions = 200000;
+
+ private:
+  struct Node {
+    int cell;
+    int t;   // time of the state, capped at window
+    int gi;  // number of goals already done
+    int g;   // cost so far (time, plus dwell beyond the window for an overflowing macro)
+    int f;
+    int parent;
+  };
+
+  int heuristic(int cell, int gi) const {
+    if (gi >= static_cast<int>(goal_count_)) return 0;
+    return query_->dist[gi][cell] + suffix_[gi];
+  }
+  // Goals with dwell 0 are done on arrival: skip every such goal at this cell.
+  int advance(int cell, int gi) const {
+    while (gi < static_cast<int>(goal_count_) && query_->goals[gi].cell == cell && query_->goals[gi].dwell == 0) ++gi;
+    return gi;
+  }
+  bool seen(int t, int gi, int cell);
+  void push(int cell, int t, int gi, int g, int parent);
+
+  const Grid& grid_;
+  int window_;
+  const AgentQuery* query_ = nullptr;
+  size_t goal_count_ = 0;
+  std::vector<int> suffix_;
+  std::vector<Node> nodes_;
+  std::vector<std::pair<std::pair<int, int>, int>> heap_;  // ((f, -g), node id)
+  std::vector<uint32_t> visited_;
+  uint32_t visit_stamp_ = 0;
+  int64_t expansions_ = 0;
+};
+
+}  // namespace rhcr

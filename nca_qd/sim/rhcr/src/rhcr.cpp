@@ -1,0 +1,228 @@
+#include "rhcr.hpp"
+
+#include <time.h>
+
+#include <algorithm>
+#include <chrono>
+#include <deque>
+#include <numeric>
+#include <stdexcept>
+#include <string>
+
+#include "grid.hpp"
+#include "pbs.hpp"
+#include "rng.hpp"
+
+namespace rhcr {
+namespace {
+
+// Bound on the goal queue (only reachable when goals of consecutive kinds share cells).
+constexpr size_t kMaxQueue = 32;
+
+double thread_cpu_seconds() {
+  timespec ts{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
+}
+
+// Draws each agent's next goal: class ids cycle, the cell is drawn by the class weights.
+class TaskAssigner {
+ public:
+  TaskAssigner(const SimConfig& cfg, Rng& rng) : cfg_(cfg), rng_(rng) {
+    for (const auto& cls : cfg.classes) {
+      std::vector<double> cum(cls.weights.size());
+      std::partial_sum(cls.weights.begin(), cls.weights.end(), cum.begin());
+      cumulative_.push_back(std::move(cum));
+    }
+  }
+  Goal next(int& phase) {
+    const int cls_id = cfg_.cycle[phase];
+    phase = (phase + 1) % static_cast<int>(cfg_.cycle.size());
+    const auto& cum = cumulative_[cls_id];
+    const double u = rng_.uniform() * cum.back();
+    size_t i = std::upper_bound(cum.begin(), cum.end(), u) - cum.begin();
+    if (i >= cum.size()) i = cum.size() - 1;
+    return {cfg_.classes[cls_id].cells[i], cfg_.classes[cls_id].dwell};
+  }
+
+ private:
+  const SimConfig& cfg_;
+  Rng& rng_;
+  std::vector<std::vector<double>> cumulative_;
+};
+
+struct AgentState {
+  int cell = 0;
+  int phase = 0;            // position in the class cycle of the next goal to draw
+  std::deque<Goal> queue;   // upcoming goals, front first
+  bool arrived = false;     // standing on queue.front() since arriving (dwell in progress)
+  int stayed = 0;           // timesteps stayed on queue.front() after arriving
+};
+
+void validate(const SimConfig& cfg) {
+  const int cells = cfg.rows * cfg.cols;
+  if (cfg.rows <= 0 || cfg.cols <= 0 || static_cast<int>(cfg.traversable.size()) != cells)
+    throw std::invalid_argument("traversable mask does not match rows x cols");
+  if (cfg.horizon <= 0) throw std::invalid_argument("horizon T must be positive");
+  if (cfg.n_agents <= 0) throw std::invalid_argument("need at least one agent");
+  if (cfg.window < 1 || cfg.replan < 1 || cfg.replan > cfg.window)
+    throw std::invalid_argument("need 1 <= replan (h) <= window (w)");
+  if (cfg.cycle.empty()) throw std::invalid_argument("empty goal cycle");
+  for (int id : cfg.cycle)
+    if (id < 0 || id >= static_cast<int>(cfg.classes.size())) throw std::invalid_argument("bad class id in cycle");
+  for (const auto& cls : cfg.classes) {
+    if (cls.cells.empty() || cls.cells.size() != cls.weights.size())
+      throw std::invalid_argument("goal class needs cells with one weight each");
+    for (size_t i = 0; i < cls.cells.size(); ++i) {
+      if (cls.cells[i] < 0 || cls.cells[i] >= cells || !cfg.traversable[cls.cells[i]])
+        throw std::invalid_argument("goal cell off the traversable tiles");
+      if (!(cls.weights[i] > 0)) throw std::invalid_argument("goal weights must be positive");
+    }
+    if (cls.dwell < 0) throw std::invalid_argument("dwell must be >= 0");
+  }
+  const int n_free = static_cast<int>(std::count(cfg.traversable.begin(), cfg.traversable.end(), 1));
+  if (cfg.n_agents > n_free) throw std::invalid_argument("more agents than traversable tiles");
+}
+
+}  // namespace
+
+SimResult simulate(const SimConfig& cfg) {
+  validate(cfg);
+  const double cpu0 = thread_cpu_seconds();
+  const auto wall0 = std::chrono::steady_clock::now();
+  const bool limited = cfg.time_limit_s > 0;
+  const auto deadline = limited ? wall0 + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                              std::chrono::duration<double>(cfg.time_limit_s))
+                                : std::chrono::steady_clock::time_point::max();
+
+  const int N = cfg.n_agents, T = cfg.horizon, w = cfg.window, h = cfg.replan;
+  Grid grid(cfg.rows, cfg.cols, cfg.traversable);
+  DistanceCache distances(grid);
+  Rng rng(cfg.seed);
+  TaskAssigner assigner(cfg, rng);
+  WindowedPBS pbs(grid, N, w);
+  const int64_t max_nodes = cfg.pbs_max_nodes > 0 ? cfg.pbs_max_nodes : std::max<int64_t>(2000, 10LL * N);
+
+  SimResult res;
+  res.tasks_per_step.assign(T, 0);
+  res.tile_visits.assign(grid.cells(), 0);
+  std::vector<std::vector<Goal>> goal_log(N);
+
+  // Initial cells: distinct, uniform over traversable tiles (partial Fisher-Yates).
+  std::vector<int> free_cells;
+  for (int c = 0; c < grid.cells(); ++c)
+    if (grid.traversable(c)) free_cells.push_back(c);
+  std::vector<AgentState> agents(N);
+  for (int a = 0; a < N; ++a) {
+    const size_t j = a + rng.below(free_cells.size() - a);
+    std::swap(free_cells[a], free_cells[j]);
+    agents[a].cell = free_cells[a];
+  }
+  // First goal kind: uniform over the cycle, so agents do not all start with the same kind.
+  for (auto& ag : agents) ag.phase = static_cast<int>(rng.below(cfg.cycle.size()));
+
+  if (cfg.record_paths) {
+    res.paths.reserve(static_cast<size_t>(T + 1) * N);
+    for (const auto& ag : agents) res.paths.push_back(ag.cell);
+  }
+
+  std::vector<AgentQuery> queries(N);
+  std::vector<int> plan;
+  int t = 0;
+  while (t < T) {
+    if (limited && std::chrono::steady_clock::now() > deadline) {
+      res.timed_out = true;
+      break;
+    }
+    // 1. Top up goal queues: append while the Manhattan length of the queue is <= h, so an
+    //    agent cannot run out of goals during the h executed steps.
+    for (int a = 0; a < N; ++a) {
+      AgentState& ag = agents[a];
+      int length = 0, prev = ag.cell;
+      for (const Goal& g : ag.queue) {
+        length += grid.manhattan(prev, g.cell);
+        prev = g.cell;
+      }
+      while (ag.queue.empty() || (length <= h && ag.queue.size() < kMaxQueue)) {
+        const Goal g = assigner.next(ag.phase);
+        length += grid.manhattan(prev, g.cell);
+        prev = g.cell;
+        ag.queue.push_back(g);
+        goal_log[a].push_back(g);
+      }
+      AgentQuery& q = queries[a];
+      q.start = ag.cell;
+      q.start_dwell_left = ag.arrived ? ag.queue.front().dwell - ag.stayed : 0;
+      q.goals.assign(ag.queue.begin(), ag.queue.end());
+      q.dist.clear();
+      for (const Goal& g : ag.queue) q.dist.push_back(distances.get(g.cell));
+    }
+
+    // 2. Plan windowed paths (PBS, or its collision-free fallback).
+    const int steps = std::min(h, T - t);
+    if (!pbs.solve(queries, steps, max_nodes, deadline, plan)) ++res.pbs_failures;
+    ++res.replans;
+
+    // 3. Execute the first h steps; count goals reached; watch for congestion.
+    std::vector<char> active(N, 0);  // moved, or dwelling at a station, during these steps
+    for (int s = 1; s <= steps; ++s) {
+      int finished = 0;
+      for (int a = 0; a < N; ++a) {
+        AgentState& ag = agents[a];
+        const int next = plan[a * (w + 1) + s];
+        if (next != ag.cell) active[a] = 1;
+        ag.cell = next;
+        ++res.tile_visits[next];
+        if (cfg.record_paths) res.paths.push_back(next);
+        // Goal bookkeeping (same rules as the A* model and the Python checker).
+        if (ag.queue.empty() || ag.queue.front().cell != ag.cell) {
+          ag.arrived = false;
+          continue;
+        }
+        if (ag.arrived) ++ag.stayed;
+        else ag.arrived = true, ag.stayed = 0;
+        while (ag.arrived && ag.stayed >= ag.queue.front().dwell) {
+          if (ag.queue.front().dwell > 0) active[a] = 1;
+          ag.queue.pop_front();
+          ++finished;
+          ag.arrived = false;
+          if (ag.queue.empty()) {  // cannot happen with the top-up rule; keep the invariant anyway
+            const Goal g = assigner.next(ag.phase);
+            ag.queue.push_back(g);
+            goal_log[a].push_back(g);
+          }
+          if (ag.queue.front().cell == ag.cell) ag.arrived = true, ag.stayed = 0;
+        }
+        if (ag.arrived && ag.queue.front().dwell > 0) active[a] = 1;  // dwelling
+      }
+      res.tasks_per_step[t + s - 1] = finished;
+      res.finished_tasks += finished;
+    }
+    t += steps;
+    // 4. Congestion: more than half of the agents neither moved nor dwelled at a station.
+    const int stuck = N - static_cast<int>(std::count(active.begin(), active.end(), 1));
+    if (2 * stuck > N) {
+      res.congested = true;
+      break;
+    }
+  }
+
+  res.stop_time = t;
+  res.success = !res.congested && !res.timed_out && t == T;
+  res.throughput = static_cast<double>(res.finished_tasks) / T;
+  res.goal_offsets.push_back(0);
+  for (const auto& log : goal_log) {
+    for (const Goal& g : log) {
+      res.goal_cells.push_back(g.cell);
+      res.goal_dwell.push_back(g.dwell);
+    }
+    res.goal_offsets.push_back(static_cast<int32_t>(res.goal_cells.size()));
+  }
+  res.pbs_nodes = pbs.stats().nodes_expanded;
+  res.low_level_expansions = pbs.low_level_expansions();
+  res.cpu_seconds = thread_cpu_seconds() - cpu0;
+  res.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
+  return res;
+}
+
+}  // namespace rhcr

@@ -1,0 +1,216 @@
+"""The compiled RHCR simulator: every run goes through the independent checker."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import strategies as st
+
+from nca_qd.errors import NcaQdError
+from nca_qd.sim.checker import check_run
+from nca_qd.sim.rhcr import simulate, simulate_many
+from nca_qd.sim.scenario import build_scenario
+
+WAREHOUSE = [
+    "............",
+    "w.eeee.eeeew",
+    "..@@@@.@@@@.",
+    "..eeee.eeee.",
+    "w..........w",
+    "..eeee.eeee.",
+    "..@@@@.@@@@.",
+    "w.eeee.eeeew",
+    "............",
+]
+MANUFACTURING = [
+    "............",
+    "..ee....ee..",
+    ".e00e..e11e.",
+    "..ee....ee..",
+    "............",
+    "..ee....ee..",
+    ".e22e..e22e.",
+    "..ee....ee..",
+    "............",
+]
+
+
+def run_checked(rows, scenario, n_agents, T, seed=0, **kw):
+    res = simulate(rows, scenario, n_agents, T, seed, record_paths=True, **kw)
+    report = check_run(res, rows)
+    assert report.finished_tasks == res.finished_tasks
+    assert res.tile_visits.sum() == n_agents * res.stop_time
+    assert res.tile_visits.shape == (len(rows), len(rows[0]))
+    assert res.throughput == pytest.approx(res.finished_tasks / T)
+    return res
+
+
+def test_warehouse_run_is_valid_and_productive():
+    res = run_checked(WAREHOUSE, "warehouse_even", 20, 200)
+    assert res.success and not res.congested and not res.timed_out
+    assert res.stop_time == 200 and res.paths.shape == (201, 20, 2)
+    assert res.finished_tasks > 100  # 20 agents on a 9x12 map finish many tasks in 200 steps
+    assert res.pbs_failures == 0
+    # Agents never stand on shelves.
+    assert res.tile_visits[np.array([list(r) for r in WAREHOUSE]) == "@"].sum() == 0
+
+
+def test_manufacturing_agents_dwell_and_cycle():
+    res = run_checked(MANUFACTURING, "manufacturing", 12, 200)
+    assert res.success and res.finished_tasks > 30
+    dwell_seen = {int(d) for g in res.goals for d in g[:, 2]}
+    assert dwell_seen == {2, 5, 10}
+
+
+def test_same_seed_same_run_other_seed_other_run():
+    a = simulate(WAREHOUSE, "warehouse_even", 15, 100, seed=3, record_paths=True)
+    b = simulate(WAREHOUSE, "warehouse_even", 15, 100, seed=3, record_paths=True)
+    c = simulate(WAREHOUSE, "warehouse_even", 15, 100, seed=4, record_paths=True)
+    assert np.array_equal(a.paths, b.paths) and np.array_equal(a.tasks_per_step, b.tasks_per_step)
+    assert not np.array_equal(a.paths[0], c.paths[0])
+
+
+def test_initial_positions_are_distinct_and_spread():
+    res = simulate(WAREHOUSE, "warehouse_even", 60, 5, seed=1, record_paths=True)
+    start = {tuple(p) for p in res.paths[0].tolist()}
+    assert len(start) == 60
+
+
+@st.composite
+def warehouse_maps(draw):
+    h, w = draw(st.integers(3, 8)), draw(st.integers(3, 8))
+    cells = draw(st.lists(st.sampled_from("....@@eew"), min_size=h * w, max_size=h * w))
+    return ["".join(cells[r * w:(r + 1) * w]) for r in range(h)]
+
+
+@st.composite
+def manufacturing_maps(draw):
+    h, w = draw(st.integers(4, 8)), draw(st.integers(4, 8))
+    grid = [[draw(st.sampled_from("..e")) for _ in range(w)] for _ in range(h)]
+    for kind in "012":
+        r, c = draw(st.integers(0, h - 1)), draw(st.integers(0, w - 1))
+        grid[r][c] = kind
+        rr, cc = draw(st.sampled_from([(r - 1, c), (r + 1, c), (r, c - 1), (r, c + 1)]))
+        if 0 <= rr < h and 0 <= cc < w and grid[rr][cc] not in "012":
+            grid[rr][cc] = "e"
+    return ["".join(row) for row in grid]
+
+
+def _valid(rows, scenario):
+    try:
+        return build_scenario(rows, scenario)
+    except NcaQdError:
+        return None
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.filter_too_much])
+@given(rows=warehouse_maps(), scenario=st.sampled_from(["warehouse_even", "warehouse_uneven"]),
+       density=st.floats(0.05, 1.0), T=st.integers(1, 40), seed=st.integers(0, 2**32),
+       window=st.integers(1, 12), data=st.data())
+def test_random_warehouses_always_valid(rows, scenario, density, T, seed, window, data):
+    scen = _valid(rows, scenario)
+    assume(scen is not None)
+    n = max(1, int(density * scen.n_traversable))
+    replan = data.draw(st.integers(1, window))
+    res = run_checked(rows, scenario, n, T, seed, window=window, replan=replan)
+    assert res.stop_time <= T
+    assert res.success == (res.stop_time == T and not res.congested and not res.timed_out)
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.filter_too_much])
+@given(rows=manufacturing_maps(), density=st.floats(0.05, 1.0), T=st.integers(1, 40),
+       seed=st.integers(0, 2**32))
+def test_random_manufacturing_always_valid(rows, density, T, seed):
+    scen = _valid(rows, "manufacturing")
+    assume(scen is not None)
+    run_checked(rows, "manufacturing", max(1, int(density * scen.n_traversable)), T, seed)
+
+
+def test_dense_map_congests_and_stops_early():
+    n_free = build_scenario(WAREHOUSE, "warehouse_even").n_traversable
+    res = run_checked(WAREHOUSE, "warehouse_even", n_free - 2, 500, seed=0)
+    assert res.congested and not res.success
+    assert res.stop_time < 500 and res.stop_time % 5 == 0
+    assert res.paths.shape[0] == res.stop_time + 1
+    assert not res.tasks_per_step[res.stop_time:].any()
+
+
+def test_pbs_failure_fallback_stays_collision_free():
+    # One high-level node per replanning forces the fallback whenever agents conflict.
+    res = run_checked(WAREHOUSE, "warehouse_even", 40, 150, seed=2, pbs_max_nodes=1)
+    assert res.pbs_failures > 0
+    assert res.finished_tasks > 0  # prioritized planning still makes progress
+
+
+def test_time_limit_is_reported_and_nothing_hangs():
+    big = [row * 6 for row in WAREHOUSE] * 6  # 54 x 72
+    t0 = time.perf_counter()
+    res = simulate(big, "warehouse_even", 800, 100_000, seed=0, time_limit_s=0.3)
+    assert time.perf_counter() - t0 < 20
+    assert res.timed_out and not res.success and res.stop_time < 100_000
+    assert res.throughput == pytest.approx(res.finished_tasks / 100_000)
+
+
+def test_uneven_prefers_left_workstations():
+    def left_share(scenario):
+        res = simulate(WAREHOUSE, scenario, 20, 400, seed=0)
+        goals = np.concatenate(res.goals)
+        cols = goals[[WAREHOUSE[r][c] == "w" for r, c, _ in goals.tolist()], 1]
+        return np.mean(cols == 0), len(cols)
+
+    even, n_even = left_share("warehouse_even")
+    uneven, n_uneven = left_share("warehouse_uneven")
+    assert n_even > 200 and n_uneven > 200
+    assert 0.4 < even < 0.6            # three workstations per side, equal weights
+    assert 0.76 < uneven < 0.9         # weights 5:1 -> 5/6
+
+
+def test_simulate_many_matches_serial_runs():
+    many = simulate_many(WAREHOUSE, "warehouse_even", 15, 80, seeds=[0, 1, 2], threads=2,
+                         record_paths=True)
+    for res, seed in zip(many, [0, 1, 2]):
+        one = simulate(WAREHOUSE, "warehouse_even", 15, 80, seed, record_paths=True)
+        assert res.seed == seed and np.array_equal(res.paths, one.paths)
+        check_run(res, WAREHOUSE)
+
+
+def test_core_releases_the_gil():
+    big = [row * 3 for row in WAREHOUSE] * 3  # 27 x 36
+    box = {}
+    worker = threading.Thread(target=lambda: box.setdefault(
+        "r", simulate(big, "warehouse_even", 150, 400, seed=0)))
+    worker.start()
+    gaps, last = [], time.perf_counter()
+    while worker.is_alive():
+        now = time.perf_counter()
+        gaps.append(now - last)
+        last = now
+        time.sleep(0.001)
+    worker.join()
+    wall = box["r"].wall_seconds
+    assert wall > 0.05
+    # With the GIL held for the whole simulation this loop would stall for `wall` seconds.
+    assert max(gaps) < 0.5 * wall + 0.02
+
+
+@pytest.mark.parametrize("rows, scenario, n, T, message", [
+    (WAREHOUSE, "warehouse_even", 1000, 10, "traversable tiles"),
+    (WAREHOUSE, "warehouse_even", 5, 0, "positive"),
+    (WAREHOUSE, "warehouse_fancy", 5, 10, "unknown scenario"),
+    (["e.@w", "..@."], "warehouse_even", 2, 10, "not all connected"),
+    (["w.e", "@@@", "..."], "warehouse_even", 2, 10, "not all connected"),
+    (["e0e1e"], "manufacturing", 1, 10, "kind-2"),
+    (["x..w"], "warehouse_even", 1, 10, "unknown tile"),
+])
+def test_bad_input_is_a_clear_error(rows, scenario, n, T, message):
+    with pytest.raises(NcaQdError, match=message):
+        simulate(rows, scenario, n, T, seed=0)
+
+
+def test_replan_longer_than_window_is_refused():
+    with pytest.raises(NcaQdError, match="replan"):
+        simulate(WAREHOUSE, "warehouse_even", 5, 10, seed=0, window=3, replan=4)

@@ -1,0 +1,88 @@
+"""`python -m experiments.simulate`: output lines, paths file, and one-line errors for bad input."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from nca_qd.sim.checker import check_run, recount_tasks
+
+WAREHOUSE = ["............", "w.eeee.eeeew", "..@@@@.@@@@.", "..eeee.eeee.", "w..........w",
+             "..eeee.eeee.", "..@@@@.@@@@.", "w.eeee.eeeew", "............"]
+
+
+def write_map(path: Path, rows: list[str]) -> str:
+    path.write_text(json.dumps({"name": path.stem, "n_row": len(rows), "n_col": len(rows[0]),
+                                "layout": rows}))
+    return str(path)
+
+
+def run_cli(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "experiments.simulate", *args], cwd=cwd,
+                          capture_output=True, text=True, timeout=120)
+
+
+def test_prints_one_line_per_run_and_a_summary(tmp_path):
+    layout = write_map(tmp_path / "wh.json", WAREHOUSE)
+    out = tmp_path / "paths.npz"
+    proc = run_cli("domain=warehouse_even", f"layout={layout}", "agents=12", "T=60", "seeds=3",
+                   "seed=5", "threads=2", f"paths_out={out}", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    lines = [json.loads(line) for line in proc.stdout.strip().splitlines()]
+    assert len(lines) == 4
+    assert [r["seed"] for r in lines[:3]] == [5, 6, 7]
+    for r in lines[:3]:
+        assert {"seed", "throughput", "success", "stop_time", "cpu_seconds"} <= set(r)
+        assert r["success"] and r["stop_time"] == 60 and r["throughput"] > 0
+    summary = lines[3]
+    thr = np.array([r["throughput"] for r in lines[:3]])
+    assert summary["runs"] == 3 and summary["success_rate"] == 1.0
+    assert summary["throughput_mean"] == pytest.approx(thr.mean())
+    assert summary["throughput_se"] == pytest.approx(thr.std(ddof=1) / np.sqrt(3))
+
+    # The paths file replays cleanly through the checker and matches the printed throughput.
+    data = np.load(out)
+    for r in lines[:3]:
+        s = r["seed"]
+        off, flat = data[f"goal_offsets_seed{s}"], data[f"goals_seed{s}"]
+        goals = [flat[a:b] for a, b in zip(off[:-1], off[1:])]
+        paths = data[f"paths_seed{s}"]
+        done = recount_tasks(paths, goals)
+        res = SimpleNamespace(paths=paths, goals=goals, stop_time=60, T=60, scenario="warehouse_even",
+                              tasks_per_step=done, throughput=done.sum() / 60)
+        check_run(res, WAREHOUSE)
+        assert done.sum() / 60 == pytest.approx(r["throughput"])
+
+
+@pytest.mark.parametrize("rows, args, message", [
+    (WAREHOUSE, ["agents=500"], "traversable tiles"),
+    (["e.@w", "..@."], [], "not all connected"),
+    (WAREHOUSE, ["domain=warehouse_mixed"], "unknown scenario"),
+    (WAREHOUSE, ["T=0"], "T must be >= 1"),
+    (WAREHOUSE, ["T=-5"], "T must be >= 1"),
+    (WAREHOUSE, ["simulator=screen"], "not available yet"),
+    (WAREHOUSE, ["domain=manufacturing"], "unknown tile"),
+])
+def test_bad_input_is_one_line_exit_2(tmp_path, rows, args, message):
+    layout = write_map(tmp_path / "m.json", rows)
+    proc = run_cli(f"layout={layout}", "agents=2", "T=10", "seeds=1", *args, cwd=tmp_path)
+    assert proc.returncode == 2
+    err = proc.stderr.strip().splitlines()
+    assert len(err) == 1 and message in err[0] and "Traceback" not in proc.stderr
+    assert proc.stdout == ""
+
+
+def test_time_limit_says_timed_out(tmp_path):
+    big = [row * 6 for row in WAREHOUSE] * 6
+    layout = write_map(tmp_path / "big.json", big)
+    proc = run_cli("domain=warehouse_even", f"layout={layout}", "agents=800", "T=100000",
+                   "seeds=1", "time_limit_s=0.2", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    run = json.loads(proc.stdout.splitlines()[0])
+    assert run["timed_out"] and not run["success"] and run["stop_time"] < 100000
