@@ -143,11 +143,12 @@ class Experiment:
                 while int(state.iteration) < self.n_iterations:
                     t0 = time.perf_counter()
                     new_state, metrics, _ = self.loop.step(state)
-                    state = new_state  # only a completed step replaces the state
-                    wall += time.perf_counter() - t0
-                    metrics["wall_seconds"] = wall
+                    metrics["wall_seconds"] = wall + time.perf_counter() - t0
                     writer.writerow(metrics)
                     fh.flush()
+                    # Only now does the new state count: a Ctrl-C before this line leaves a
+                    # metrics row past the checkpoint, which resume drops and recomputes.
+                    state, wall = new_state, metrics["wall_seconds"]
                     bar.update(1)
                     bar.set_postfix(qd=f"{metrics['qd_score']:.4g}",
                                     cov=f"{metrics['coverage']:.3f}")

@@ -1,0 +1,52 @@
+"""Map files: the shared layouts load, defects are named with the file."""
+
+import json
+
+import numpy as np
+import pytest
+
+from nca_qd.errors import MapFormatError
+from nca_qd.io import MapFile, array_to_rows, load_map, save_map
+
+
+def _write(tmp_path, data, name="m.json"):
+    path = tmp_path / name
+    path.write_text(json.dumps(data))
+    return path
+
+
+def test_every_shared_map_loads_with_its_alphabet(maps_dir):
+    alphabets = {"warehouse": ".@ew", "manufacturing": ".e012", "maze": " X"}
+    files = sorted(maps_dir.glob("*/*.json"))
+    assert len(files) >= 20
+    for path in files:
+        mf = load_map(path, alphabets[path.parent.name])
+        assert mf.shape == (len(mf.rows), len(mf.rows[0]))
+
+
+def test_declared_size_disagreeing_with_rows_is_an_error(tmp_path):
+    path = _write(tmp_path, {"name": "x", "n_row": 2, "n_col": 98, "layout": ["..", ".."]})
+    with pytest.raises(MapFormatError, match=r"m\.json: declares n_col=98 but the layout has 2"):
+        load_map(path)
+
+
+def test_ragged_rows_and_unknown_tiles_are_errors(tmp_path):
+    with pytest.raises(MapFormatError, match="ragged rows"):
+        load_map(_write(tmp_path, {"layout": ["...", ".."]}))
+    with pytest.raises(MapFormatError, match=r"unknown tile 'Q' at row 1, column 0"):
+        load_map(_write(tmp_path, {"layout": ["..", "Q."]}), tiles=".@")
+    with pytest.raises(MapFormatError, match="not valid JSON"):
+        (tmp_path / "bad.json").write_text("{nope")
+        load_map(tmp_path / "bad.json")
+    with pytest.raises(MapFormatError, match="no such map file"):
+        load_map(tmp_path / "missing.json")
+
+
+def test_round_trip_through_save(tmp_path):
+    layout = np.array([[0, 1, 2], [2, 1, 0]])
+    rows = array_to_rows(layout, ".@e")
+    save_map(tmp_path / "out.json", MapFile("t", rows, {"weight": False}))
+    back = load_map(tmp_path / "out.json", ".@e")
+    np.testing.assert_array_equal(back.to_array(".@e"), layout)
+    data = json.loads((tmp_path / "out.json").read_text())
+    assert data["n_row"] == 2 and data["n_col"] == 3 and data["weight"] is False

@@ -1,0 +1,121 @@
+"""End to end: a short maze run writes every output; resume continues to the same end; bad
+input gets one line and a non-zero exit."""
+
+import csv
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from experiments.cli import compose_config
+from nca_qd.experiment import Experiment
+
+REPO = Path(__file__).resolve().parents[1]
+TINY = ["domain=maze", "qd.n_emitters=2", "qd.batch_size=4", "qd.n_evals=40",
+        "qd.checkpoint_every=2", "domain.agent.episodes=3", "output.n_best=2", "qd.progress=false"]
+OUTPUTS = ["config.yaml", "metrics.csv", "checkpoint.msgpack", "archive_result.npz",
+           "archive_opt.npz", "archive_result.png", "archive_opt.png", "curves.png",
+           "best_train.png", "best_eval.png"]
+
+
+def _cfg(*extra):
+    return compose_config("run", TINY + list(extra))
+
+
+def _metrics(run_dir):
+    with open(run_dir / "metrics.csv") as fh:
+        return list(csv.DictReader(fh))
+
+
+@pytest.fixture(scope="module")
+def full_run(tmp_path_factory):
+    run_dir = tmp_path_factory.mktemp("full")
+    exp = Experiment(_cfg(), run_dir)
+    state = exp.run()
+    return run_dir, exp, state
+
+
+def test_short_maze_run_writes_every_output(full_run):
+    run_dir, exp, state = full_run
+    for name in OUTPUTS:
+        assert (run_dir / name).is_file(), name
+    rows = _metrics(run_dir)
+    assert [int(r["iteration"]) for r in rows] == list(range(1, 6))
+    assert int(rows[-1]["evaluations"]) == 40
+    for col in ("qd_score", "coverage", "best_objective", "wall_seconds"):
+        assert col in rows[-1]
+    archive = np.load(run_dir / "archive_result.npz")
+    assert archive["genotypes"].shape == (256 * 162, 1730)
+    occupied = np.isfinite(archive["objective"])
+    assert 0 < occupied.sum() <= 40
+    assert float(rows[-1]["coverage"]) == pytest.approx(occupied.mean())
+
+
+def test_resume_continues_and_ends_where_an_uninterrupted_run_ends(full_run, tmp_path):
+    run_dir, _, reference = full_run
+    # first leg: stop after 24 evaluations (3 iterations), then resume to 40
+    part = tmp_path / "resumed"
+    Experiment(_cfg("qd.n_evals=24", "output.pictures=false"), part).run()
+    assert [int(r["iteration"]) for r in _metrics(part)] == [1, 2, 3]
+    exp = Experiment(_cfg("qd.n_evals=40", "output.pictures=false"), part)
+    state = exp.run(resume=True)
+    assert [int(r["iteration"]) for r in _metrics(part)] == [1, 2, 3, 4, 5]
+    np.testing.assert_array_equal(np.asarray(state.res_archive.fitnesses),
+                                  np.asarray(reference.res_archive.fitnesses))
+    np.testing.assert_array_equal(np.asarray(state.opt_archive.thresholds),
+                                  np.asarray(reference.opt_archive.thresholds))
+
+
+def _cli(*args, timeout=300):
+    env = {**os.environ, "JAX_PLATFORMS": "cpu"}
+    return subprocess.run([sys.executable, "-m", "experiments.run", *args], cwd=REPO,
+                          capture_output=True, text=True, timeout=timeout, env=env)
+
+
+@pytest.mark.parametrize("args,message", [
+    (["domain=nowhere"], "bad configuration"),
+    (["algo=simulated_annealing"], "bad configuration"),
+    (["qd.n_evals=abc"], "qd.n_evals must be a positive integer"),
+    (["qd.n_evals=-5"], "qd.n_evals must be a positive integer"),
+    (["domain.size.train=[0,16]"], "domain.size.train must be two integers"),
+    (["resume=/nonexistent/run"], "does not exist"),
+])
+def test_bad_input_gets_one_line_and_exit_2(args, message):
+    out = _cli(*args)
+    assert out.returncode == 2, out.stderr
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and message in lines[0], out.stderr
+    assert "Traceback" not in out.stderr
+
+
+def test_resume_of_another_domain_is_refused(full_run):
+    run_dir, _, _ = full_run
+    out = _cli(f"resume={run_dir}", "domain=warehouse_even")
+    assert out.returncode == 2 and "holds a domain 'maze' run" in out.stderr
+
+
+def test_ctrl_c_leaves_a_resumable_checkpoint(tmp_path):
+    run_dir = tmp_path / "interrupted"
+    args = TINY + ["qd.n_evals=4000", f"run_dir={run_dir}"]
+    proc = subprocess.Popen([sys.executable, "-m", "experiments.run", *args], cwd=REPO,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "JAX_PLATFORMS": "cpu"})
+    deadline = time.time() + 240
+    while time.time() < deadline and not (run_dir / "checkpoint.msgpack").exists():
+        time.sleep(0.5)
+    assert (run_dir / "checkpoint.msgpack").exists(), "no checkpoint appeared"
+    time.sleep(1.0)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert "resume with resume=" in err and "Traceback" not in err
+    done = len(_metrics(run_dir))
+    out = _cli(f"resume={run_dir}", "qd.n_evals=" + str(8 * (done + 2)), "output.pictures=false")
+    assert out.returncode == 0, out.stderr[-2000:]
+    rows = _metrics(run_dir)
+    assert [int(r["iteration"]) for r in rows] == list(range(1, done + 3))
