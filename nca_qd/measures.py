@@ -35,3 +35,24 @@ def batch_entropy(layouts: jax.Array, n_tiles: int) -> jax.Array:
 def tile_count(layouts: jax.Array, tile: int) -> jax.Array:
     """Number of tiles of type ``tile`` in each layout of ``[b, H, W]`` -> ``[b]`` (e.g. walls)."""
     return jnp.sum(layouts == tile, axis=(-2, -1)).astype(jnp.float32)
+
+
+def shelf_components(layouts, shelf: int):
+    """Number of 4-connected components of ``shelf`` tiles in each layout ``[b, H, W]`` -> ``[b]``.
+
+    Host-side (scipy labelling, not jit-able): it runs once per repaired layout, after the MILP.
+    """
+    import numpy as np
+    from scipy import ndimage
+
+    layouts = np.asarray(layouts)
+    four = ndimage.generate_binary_structure(2, 1)
+    flat = layouts.reshape((-1,) + layouts.shape[-2:])
+    out = np.array([ndimage.label(lay == shelf, structure=four)[1] for lay in flat], dtype=np.float32)
+    return out.reshape(layouts.shape[:-2])
+
+
+def station_count(layouts, stations) -> "jax.Array":
+    """Number of tiles whose type is any of ``stations`` in each layout ``[b, H, W]`` -> ``[b]``."""
+    layouts = jnp.asarray(layouts)
+    return sum(tile_count(layouts, int(s)) for s in stations)

@@ -16,6 +16,9 @@ from nca_qd.errors import NcaQdError
 # the compiled simulator) are not loaded for another.
 DOMAINS: dict[str, str] = {
     "maze": "nca_qd.domains.maze:MazeDomain",
+    "warehouse_even": "nca_qd.domains.warehouse:WarehouseDomain",
+    "warehouse_uneven": "nca_qd.domains.warehouse:WarehouseUnevenDomain",
+    "manufacturing": "nca_qd.domains.manufacturing:ManufacturingDomain",
 }
 
 

@@ -1,0 +1,104 @@
+"""Repair time and Hamming distance (median and max) on generator outputs and the paper's example.
+
+    .venv/bin/python -m benchmarks.bench_repair [--n-small 50] [--n-large 10] [--n-full 5]
+
+(a) ``n_small`` random NCA generators (parameters ~ N(0, 0.2^2), the paper's sigma0) at 33x36,
+    C = 50, warehouse (even) and manufacturing, default (neighbourhood) repair;
+(b) the paper's unrepaired CMA-MAE warehouse layout (its CPLEX repair moved 32 tiles);
+(c) ``n_large`` random generators at 101x102, C_eval = 200, each domain; the goal is every repair
+    within 120 s;
+(d) the cost of not solving one monolithic MILP: the first ``n_full`` inputs of (a), and (b),
+    repaired with ``method=full`` (time limit ``--full-limit``), Hamming compared.
+Prints one table; all repairs single-threaded.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+
+from nca_qd.io import load_map
+from nca_qd.nca import NCAGenerator
+from nca_qd.repair import make_rules, repair
+from nca_qd.repair import manufacturing as mf
+from nca_qd.repair import warehouse as wh
+from nca_qd.repair.validator import check
+
+PAPER = Path("/work/shared/reference/maps/warehouse/paper_cma-mae_a5_even_33x36_unrepaired.json")
+
+
+def generated(domain: str, region: tuple[int, int], n: int, n_iters: int, seed: int) -> np.ndarray:
+    """Full layouts from ``n`` random generators started from the domain seed."""
+    from nca_qd.domains import make_domain
+    from experiments.cli import compose_config
+
+    dom = make_domain(compose_config("repair", [f"domain={domain}"]).domain)
+    gen = NCAGenerator(dom.n_tiles)
+    params = np.random.default_rng(seed).normal(0.0, 0.2, size=(n, gen.n_params))
+    regions = np.asarray(gen.generate(params, dom.seed(region), n_iters))
+    return dom.assemble(regions)
+
+
+def run_set(label: str, domain: str, layouts, rows: list, **opts) -> list:
+    results = []
+    for lay in layouts:
+        res = repair(domain, lay, **opts)
+        ok = res.layout is not None and check(res.layout, make_rules(domain, lay.shape)) is None
+        results.append((res, ok))
+    times = [r.seconds for r, _ in results]
+    ham = [r.hamming for r, _ in results if r.hamming is not None]
+    statuses = {}
+    for r, _ in results:
+        statuses[r.status] = statuses.get(r.status, 0) + 1
+    rows.append((label, len(results), statistics.median(times), max(times),
+                 statistics.median(ham) if ham else float("nan"), max(ham) if ham else float("nan"),
+                 sum(ok for _, ok in results), ", ".join(f"{k} {v}" for k, v in sorted(statuses.items()))))
+    print(f"  done: {label}", flush=True)
+    return results
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--n-small", type=int, default=50)
+    ap.add_argument("--n-large", type=int, default=10)
+    ap.add_argument("--n-full", type=int, default=5)
+    ap.add_argument("--full-limit", type=float, default=20.0)
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args(argv)
+    rows: list = []
+    compare: list = []
+    t0 = time.perf_counter()
+    for domain, region in (("warehouse_even", (33, 32)), ("manufacturing", (33, 36))):
+        lays = generated(domain, region, args.n_small, 50, args.seed)
+        small = run_set(f"(a) {domain} 33x36", domain, lays, rows)
+        full = run_set(f"(d) {domain} 33x36 full MILP", domain, lays[:args.n_full], rows,
+                       method="full", time_limit_s=args.full_limit)
+        for (s, _), (f, _) in zip(small, full):
+            compare.append((domain, s.hamming, f.hamming, f.status, s.seconds, f.seconds))
+    if PAPER.is_file():
+        lay = load_map(PAPER, wh.TILES).to_array(wh.TILES)
+        (s, _), = run_set("(b) paper CMA-MAE a=5 even", "warehouse_even", [lay], rows)
+        (f, _), = run_set("(b) ... full MILP", "warehouse_even", [lay], rows, method="full",
+                          time_limit_s=args.full_limit)
+        compare.append(("paper example", s.hamming, f.hamming, f.status, s.seconds, f.seconds))
+    for domain, region in (("warehouse_even", (101, 98)), ("manufacturing", (101, 102))):
+        lays = generated(domain, region, args.n_large, 200, args.seed + 1)
+        run_set(f"(c) {domain} 101x102", domain, lays, rows)
+
+    print(f"\nrepair benchmark ({time.perf_counter() - t0:.0f} s in all; 1 thread per repair)")
+    head = ("set", "n", "t med s", "t max s", "Ham med", "Ham max", "valid", "statuses")
+    print(" | ".join(head))
+    for r in rows:
+        print(f"{r[0]} | {r[1]} | {r[2]:.2f} | {r[3]:.2f} | {r[4]:.0f} | {r[5]:.0f} | {r[6]}/{r[1]} | {r[7]}")
+    print("\nneighbourhood vs full MILP (same input): domain | Ham nbhd | Ham full | full status | "
+          "t nbhd s | t full s")
+    for c in compare:
+        print(f"{c[0]} | {c[1]} | {c[2]} | {c[3]} | {c[4]:.2f} | {c[5]:.2f}")
+
+
+if __name__ == "__main__":
+    main()

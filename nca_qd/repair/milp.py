@@ -1,0 +1,329 @@
+"""The exact repair MILP over a window of cells, the rest of the layout held fixed (HiGHS).
+
+Variables (paper, after Zhang et al. 2023): a binary ``x[c, t]`` per window cell ``c`` and tile
+``t`` with one tile per cell; the objective is the weighted Hamming distance to the unrepaired
+layout. Connectivity is a single-commodity flow: continuous ``f_ij <= N`` on directed edges,
+``in_i + supply_i = demand_i + out_i`` with demand 1 on every passable node, and no flow leaves
+or enters a blocking cell (``f_ij <= N * passable_i`` and ``<= N * passable_j``).
+
+Window = the whole free area gives the paper's monolithic model (``method=full``). For a
+smaller window, the fixed passable cells outside are contracted into one node per connected
+outside component (connected through outside cells only); such a node always demands flow and
+links to the window cells it touches. The layout is connected iff the contracted graph is, so
+the window model is exact *for the window*: any solution it returns makes the whole layout
+valid (given valid cells outside the window's reach), and it finds the best layout among those
+that differ from the current one only inside the window. With at least one outside node, the
+first one is the flow source; with none (full manufacturing map), a binary ``y_c`` chooses the
+source cell (``sum y = 1``, ``y_c <= passable_c``) so no valid layout is excluded.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import dataclass
+
+import highspy
+import numpy as np
+from scipy import ndimage
+
+from nca_qd.repair.rules import Rules, neighbours
+
+_FOUR = ndimage.generate_binary_structure(2, 1)
+
+
+@dataclass
+class WindowResult:
+    """Outcome of one window solve.
+
+    status: ``optimal`` (proven for the window), ``feasible`` (a solution, not proven optimal, at
+        the time limit), ``infeasible`` (proven: no valid layout differs only in the window),
+        ``timeout`` (no solution in time).
+    layout: the full layout with the window re-solved (None unless optimal/feasible).
+    objective: weighted Hamming distance inside the window (None without a solution).
+    """
+
+    status: str
+    layout: np.ndarray | None
+    objective: float | None
+    seconds: float
+    n_cells: int
+
+
+class _Rows:
+    """Row-wise sparse constraint matrix accumulated in Python lists (CSR at the end)."""
+
+    def __init__(self) -> None:
+        self.lower: list[float] = []
+        self.upper: list[float] = []
+        self.starts: list[int] = []
+        self.index: list[int] = []
+        self.value: list[float] = []
+
+    def add(self, cols: list[int], vals: list[float], lo: float, hi: float) -> None:
+        self.starts.append(len(self.index))
+        self.index.extend(cols)
+        self.value.extend(vals)
+        self.lower.append(lo)
+        self.upper.append(hi)
+
+
+def solve_window(
+    current: np.ndarray,
+    layout_in: np.ndarray,
+    window: np.ndarray,
+    rules: Rules,
+    *,
+    time_limit: float = 60.0,
+    threads: int = 1,
+    seed: int = 0,
+    warm_start: bool = True,
+) -> WindowResult:
+    """Best layout that equals ``current`` outside ``window`` (bool ``[h, w]``) and satisfies ``rules``.
+
+    ``warm_start`` passes ``current`` (with a flow routed along a BFS tree) as the incumbent; the
+    caller sets it only when ``current`` is valid.
+    """
+    t0 = time.perf_counter()
+    h, w = current.shape
+    inf = highspy.kHighsInf
+    window = window & ~rules.fixed
+    cells = [tuple(map(int, rc)) for rc in np.argwhere(window)]
+    n = len(cells)
+    if n == 0:
+        return WindowResult("infeasible", None, None, time.perf_counter() - t0, 0)
+    cid = -np.ones((h, w), dtype=np.int64)
+    for i, (r, c) in enumerate(cells):
+        cid[r, c] = i
+    free = rules.free_tiles
+    k_of = {t: k for k, t in enumerate(free)}
+    K = len(free)
+    pass_k = [k for k, t in enumerate(free) if t in rules.passable]
+
+    def xcol(i: int, k: int) -> int:
+        return i * K + k
+
+    # Outside passable components -> super nodes.
+    outside_pass = rules.passable_mask(current) & ~window
+    labels, n_lab = ndimage.label(outside_pass, structure=_FOUR)
+    touches: list[set[int]] = [set() for _ in range(n)]
+    for i, (r, c) in enumerate(cells):
+        for rr, cc in neighbours(r, c, h, w):
+            if labels[rr, cc] > 0:
+                touches[i].add(int(labels[rr, cc]))
+    touched = sorted(set().union(*touches)) if n else []
+    if n_lab > len(touched):
+        # An outside traversable region the window cannot reach: no repair inside the window.
+        return WindowResult("infeasible", None, None, time.perf_counter() - t0, n)
+    super_of = {lab: n + s for s, lab in enumerate(touched)}
+    n_nodes = n + len(touched)
+    big_n = float(n_nodes)
+
+    # Directed edges of the contracted graph.
+    edges: list[tuple[int, int]] = []
+    for i, (r, c) in enumerate(cells):
+        for rr, cc in neighbours(r, c, h, w):
+            j = cid[rr, cc]
+            if j >= 0:
+                edges.append((i, int(j)))
+        for lab in sorted(touches[i]):
+            s = super_of[lab]
+            edges.append((i, s))
+            edges.append((s, i))
+
+    n_x = n * K
+    f0 = n_x
+    n_f = len(edges)
+    use_source_vars = not touched
+    y0 = f0 + n_f
+    s0 = y0 + (n if use_source_vars else 0)
+    n_cols = s0 + (n if use_source_vars else 0)
+
+    weights = rules.cell_weights(layout_in)
+    cost = np.zeros(n_cols)
+    offset = 0.0
+    for i, (r, c) in enumerate(cells):
+        wgt = float(weights[r, c])
+        offset += wgt
+        k = k_of.get(int(layout_in[r, c]))
+        if k is not None:
+            cost[xcol(i, k)] = -wgt
+    lower = np.zeros(n_cols)
+    upper = np.ones(n_cols)
+    upper[f0:f0 + n_f] = big_n
+    if use_source_vars:
+        upper[s0:s0 + n] = big_n
+    integrality = np.zeros(n_cols, dtype=np.int32)
+    integrality[:n_x] = 1
+    if use_source_vars:
+        integrality[y0:y0 + n] = 1
+
+    rows = _Rows()
+    # One tile per cell.
+    for i in range(n):
+        rows.add([xcol(i, k) for k in range(K)], [1.0] * K, 1.0, 1.0)
+    # Flow capacities: nothing leaves or enters a blocking window cell.
+    for e, (a, b) in enumerate(edges):
+        for node in (a, b):
+            if node < n:
+                rows.add([f0 + e] + [xcol(node, k) for k in pass_k],
+                         [1.0] + [-big_n] * len(pass_k), -inf, 0.0)
+    # Conservation: in - out (+ supply) = demand.
+    inc: list[list[int]] = [[] for _ in range(n_nodes)]
+    out: list[list[int]] = [[] for _ in range(n_nodes)]
+    for e, (a, b) in enumerate(edges):
+        out[a].append(f0 + e)
+        inc[b].append(f0 + e)
+    source = None if use_source_vars else n  # the first outside component
+    for v in range(n_nodes):
+        if v == source:
+            continue
+        cols = inc[v] + out[v]
+        vals = [1.0] * len(inc[v]) + [-1.0] * len(out[v])
+        if v < n:
+            cols = cols + [xcol(v, k) for k in pass_k]
+            vals = vals + [-1.0] * len(pass_k)
+            if use_source_vars:
+                cols.append(s0 + v)
+                vals.append(1.0)
+            rows.add(cols, vals, 0.0, 0.0)
+        else:
+            rows.add(cols, vals, 1.0, 1.0)
+    if use_source_vars:
+        rows.add([y0 + i for i in range(n)], [1.0] * n, 1.0, 1.0)
+        for i in range(n):
+            rows.add([s0 + i, y0 + i], [1.0, -big_n], -inf, 0.0)
+            rows.add([y0 + i] + [xcol(i, k) for k in pass_k], [1.0] + [-1.0] * len(pass_k), -inf, 0.0)
+        all_pass = [xcol(i, k) for i in range(n) for k in pass_k]
+        rows.add([s0 + i for i in range(n)] + all_pass, [1.0] * n + [-1.0] * len(all_pass), 0.0, 0.0)
+
+    # Adjacency rules on window cells and the fixed cells around them.
+    ring = np.zeros((h, w), dtype=bool)
+    ring[1:, :] |= window[:-1, :]
+    ring[:-1, :] |= window[1:, :]
+    ring[:, 1:] |= window[:, :-1]
+    ring[:, :-1] |= window[:, 1:]
+    ring &= ~window
+    check_cells = cells + [tuple(map(int, rc)) for rc in np.argwhere(ring)]
+    for rule in rules.adjacency:
+        a_k = [k for k, t in enumerate(free) if t in rule.tiles]
+        b_k = [k for k, t in enumerate(free) if t in rule.needs]
+        for r, c in check_cells:
+            i = cid[r, c]
+            cols: list[int] = []
+            vals: list[float] = []
+            if i >= 0:
+                cols += [xcol(int(i), k) for k in a_k]
+                vals += [1.0] * len(a_k)
+                a_const = 0.0
+            else:
+                if int(current[r, c]) not in rule.tiles:
+                    continue
+                a_const = 1.0
+            b_const = 0.0
+            for rr, cc in neighbours(r, c, h, w):
+                j = cid[rr, cc]
+                if j >= 0:
+                    cols += [xcol(int(j), k) for k in b_k]
+                    vals += [-1.0] * len(b_k)
+                elif int(current[rr, cc]) in rule.needs:
+                    b_const += 1.0
+            if not cols:
+                continue
+            rows.add(cols, vals, -inf, b_const - a_const)
+    # Count rules: the window makes up what the fixed part lacks.
+    for rule in rules.counts:
+        outside = int((np.isin(current, list(rule.tiles)) & ~window).sum())
+        t_k = [k for k, t in enumerate(free) if t in rule.tiles]
+        cols = [xcol(i, k) for i in range(n) for k in t_k]
+        need = float(rule.value - outside)
+        hi = need if rule.op == "==" else inf
+        rows.add(cols, [1.0] * len(cols), need, hi)
+
+    hs = highspy.Highs()
+    hs.setOptionValue("output_flag", False)
+    hs.setOptionValue("time_limit", max(0.05, float(time_limit)))
+    hs.setOptionValue("threads", int(threads))
+    hs.setOptionValue("random_seed", int(seed))
+    hs.setOptionValue("mip_rel_gap", 0.0)
+    # Integer weights: a gap below 1 proves optimality.
+    hs.setOptionValue("mip_abs_gap", 0.999)
+    hs.addCols(n_cols, cost, lower, upper, 0, np.array([], dtype=np.int32),
+               np.array([], dtype=np.int32), np.array([], dtype=np.float64))
+    hs.changeColsIntegrality(n_cols, np.arange(n_cols, dtype=np.int32), integrality)
+    n_rows = len(rows.lower)
+    hs.addRows(n_rows, np.array(rows.lower), np.array(rows.upper), len(rows.index),
+               np.array(rows.starts, dtype=np.int32), np.array(rows.index, dtype=np.int32),
+               np.array(rows.value, dtype=np.float64))
+    hs.changeObjectiveOffset(offset)
+    if warm_start:
+        start = _warm_start(current, cells, cid, edges, n, n_nodes, source, free, rules, K, n_cols,
+                            f0, y0, s0)
+        if start is not None:
+            sol = highspy.HighsSolution()
+            sol.col_value = list(start)
+            hs.setSolution(sol)
+    hs.run()
+    status = hs.getModelStatus()
+    info = hs.getInfo()
+    seconds = time.perf_counter() - t0
+    has_solution = info.primal_solution_status == 2  # kSolutionStatusFeasible
+    if status == highspy.HighsModelStatus.kInfeasible:
+        return WindowResult("infeasible", None, None, seconds, n)
+    if not has_solution:
+        return WindowResult("timeout", None, None, seconds, n)
+    values = np.asarray(hs.getSolution().col_value)
+    x = values[:n_x].reshape(n, K)
+    new = current.copy()
+    for i, (r, c) in enumerate(cells):
+        new[r, c] = free[int(np.argmax(x[i]))]
+    label = "optimal" if status == highspy.HighsModelStatus.kOptimal else "feasible"
+    return WindowResult(label, new, float(info.objective_function_value), seconds, n)
+
+
+def _warm_start(current, cells, cid, edges, n, n_nodes, source, free, rules, K, n_cols, f0, y0, s0):
+    """Column values of ``current`` with flows along a BFS tree from the source (None if unroutable)."""
+    k_of = {t: k for k, t in enumerate(free)}
+    vals = np.zeros(n_cols)
+    passable = np.zeros(n_nodes, dtype=bool)
+    passable[n:] = True
+    for i, (r, c) in enumerate(cells):
+        k = k_of.get(int(current[r, c]))
+        if k is None:
+            return None
+        vals[i * K + k] = 1.0
+        passable[i] = int(current[r, c]) in rules.passable
+    if source is None:
+        cand = np.flatnonzero(passable[:n])
+        if len(cand) == 0:
+            return None
+        src = int(cand[0])
+    else:
+        src = source
+    adj: list[list[tuple[int, int]]] = [[] for _ in range(n_nodes)]
+    for e, (a, b) in enumerate(edges):
+        adj[a].append((b, e))
+    parent_edge = -np.ones(n_nodes, dtype=np.int64)
+    seen = np.zeros(n_nodes, dtype=bool)
+    seen[src] = True
+    order = [src]
+    queue = deque([src])
+    while queue:
+        a = queue.popleft()
+        for b, e in adj[a]:
+            if not seen[b] and passable[b]:
+                seen[b] = True
+                parent_edge[b] = e
+                order.append(b)
+                queue.append(b)
+    if not np.all(seen[passable]):
+        return None
+    sub = passable.astype(float)
+    for v in reversed(order[1:]):
+        e = int(parent_edge[v])
+        vals[f0 + e] = sub[v]
+        sub[edges[e][0]] += sub[v]
+    if source is None:
+        vals[y0 + src] = 1.0
+        vals[s0 + src] = float(passable[:n].sum())
+    return vals

@@ -1,0 +1,106 @@
+"""Warehouse layouts: the fixed workstation frame and the repair rules.
+
+The full warehouse map is the NCA's storage area (tiles ``.@e``) with two fixed columns on each
+side: workstations ``w`` in the outer column at rows i with (i - 1) mod 3 == 0 (first and last
+row excluded) and an empty column next to them (paper appendix B.1; the human layouts). The
+repair keeps that frame unchanged and may change every storage cell.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from nca_qd.errors import NcaQdError
+from nca_qd.repair.rules import AdjacencyRule, CountRule, Rules
+
+TILES = ".@ew"  # layout alphabet; the storage area (NCA) uses the first three
+GEN_TILES = ".@e"
+EMPTY, SHELF, ENDPOINT, WORKSTATION = range(4)
+FRAME = 2  # fixed columns on each side
+
+# Shelves of the human-designed layout of each full-map size (N_s of the paper and its appendix).
+SHELVES_BY_SIZE: dict[tuple[int, int], int] = {
+    (33, 36): 240, (45, 47): 440, (57, 58): 700, (69, 69): 1020, (81, 80): 1400,
+    (93, 91): 1840, (101, 102): 2250,
+}
+
+
+def full_shape(storage_shape: tuple[int, int]) -> tuple[int, int]:
+    return storage_shape[0], storage_shape[1] + 2 * FRAME
+
+
+def frame(shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """``(fixed_mask, fixed_layout)`` of a full map of ``shape``: the workstation columns."""
+    h, w = shape
+    fixed = np.zeros(shape, dtype=bool)
+    fixed[:, :FRAME] = True
+    fixed[:, w - FRAME:] = True
+    lay = np.full(shape, EMPTY, dtype=np.int32)
+    rows = [i for i in range(1, h - 1) if (i - 1) % 3 == 0]
+    lay[rows, 0] = WORKSTATION
+    lay[rows, w - 1] = WORKSTATION
+    return fixed, lay
+
+
+def assemble(region: np.ndarray) -> np.ndarray:
+    """Storage area(s) ``[..., h, w]`` -> full map(s) ``[..., h, w + 4]`` with the frame."""
+    region = np.asarray(region)
+    h, w = region.shape[-2:]
+    _, lay = frame(full_shape((h, w)))
+    out = np.broadcast_to(lay, region.shape[:-2] + lay.shape).copy()
+    out[..., :, FRAME:FRAME + w] = region
+    return out
+
+
+def storage(layout: np.ndarray) -> np.ndarray:
+    """Full map(s) -> storage area(s) (the NCA's region)."""
+    return np.asarray(layout)[..., :, FRAME:-FRAME]
+
+
+def default_shelves(shape: tuple[int, int]) -> int:
+    """N_s for a full map of ``shape``: the human-designed layout's shelf count at that size."""
+    if tuple(shape) not in SHELVES_BY_SIZE:
+        sizes = ", ".join(f"{h}x{w}" for h, w in SHELVES_BY_SIZE)
+        raise NcaQdError(f"no default shelf count for a {shape[0]}x{shape[1]} warehouse "
+                         f"(known sizes: {sizes}); give n_shelves=<N>")
+    return SHELVES_BY_SIZE[tuple(shape)]
+
+
+def rules(shape: tuple[int, int], n_shelves: int | None = None) -> Rules:
+    """Validity of a full warehouse map of ``shape`` with ``n_shelves`` shelves (None: by size)."""
+    if shape[1] <= 2 * FRAME or shape[0] < 3:
+        raise NcaQdError(f"a warehouse map needs at least 3 rows and {2 * FRAME + 1} columns, "
+                         f"got {shape[0]}x{shape[1]}")
+    n = default_shelves(shape) if n_shelves is None else int(n_shelves)
+    fixed, lay = frame(shape)
+    return Rules(
+        tiles=TILES,
+        passable=frozenset({EMPTY, ENDPOINT}),
+        reach_only=frozenset({WORKSTATION}),
+        free_tiles=(EMPTY, SHELF, ENDPOINT),
+        adjacency=(
+            AdjacencyRule(frozenset({SHELF}), frozenset({ENDPOINT}), "shelf without an endpoint"),
+            AdjacencyRule(frozenset({ENDPOINT}), frozenset({SHELF}), "endpoint without a shelf"),
+        ),
+        counts=(CountRule(frozenset({SHELF}), "==", n, "shelves"),),
+        fixed=fixed,
+        fixed_layout=lay,
+    )
+
+
+def check_frame(layout: np.ndarray, source: str) -> None:
+    """Raise :class:`NcaQdError` naming ``source`` if the workstation columns are not as required."""
+    fixed, lay = frame(layout.shape)
+    bad = np.argwhere(fixed & (layout != lay))
+    if len(bad):
+        r, c = bad[0]
+        raise NcaQdError(f"{source}: workstation column not as the warehouse requires at row {r}, "
+                         f"column {c}: {TILES[layout[r, c]]!r}, expected {TILES[lay[r, c]]!r}")
+    inner = np.argwhere(~fixed & (layout == WORKSTATION))
+    if len(inner):
+        r, c = inner[0]
+        raise NcaQdError(f"{source}: workstation 'w' inside the storage area at row {r}, column {c}")
+
+
+# Paper colours: shelves black, endpoints blue, workstations pink, empty white.
+PALETTE = {".": "white", "@": "black", "e": "#3b6fd6", "w": "#f29ec8"}

@@ -1,0 +1,109 @@
+"""Repair: valid output or a status saying why not; exactness of the MILP; determinism."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from nca_qd.io import load_map
+from nca_qd.repair import make_rules, repair
+from nca_qd.repair import manufacturing as mf
+from nca_qd.repair import warehouse as wh
+from nca_qd.repair.validator import check
+
+MAPS = Path("/work/shared/reference/maps")
+FAST = dict(time_limit_s=20, improve_time_s=0.3)
+
+
+def assert_result_ok(res, domain, layout, **rule_opts):
+    """Valid layout with consistent figures, or no layout and a status that says why."""
+    if res.layout is None:
+        assert res.status in ("infeasible", "no_solution")
+        assert res.similarity == 0.0
+        return
+    assert res.status in ("optimal", "feasible")
+    assert check(res.layout, make_rules(domain, layout.shape, **rule_opts)) is None
+    assert res.hamming == int((res.layout != layout).sum())
+    assert 0.0 <= res.similarity <= 1.0
+
+
+storage = st.integers(0, 2)
+
+
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(st.lists(storage, min_size=6, max_size=6), min_size=9, max_size=9))
+def test_warehouse_random_inputs(cells):
+    layout = wh.assemble(np.array(cells, dtype=np.int32))  # 9 x 10
+    res = repair("warehouse_even", layout, n_shelves=8, **FAST)
+    assert_result_ok(res, "warehouse_even", layout, n_shelves=8)
+    assert res.layout is not None  # 8 shelves always fit in a 9x6 storage area
+    assert res.hamming >= abs(int((layout == wh.SHELF).sum()) - 8)
+
+
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(st.lists(st.integers(0, 4), min_size=7, max_size=7), min_size=6, max_size=6))
+def test_manufacturing_random_inputs(cells):
+    layout = np.array(cells, dtype=np.int32)
+    res = repair("manufacturing", layout, n_agents=12, **FAST)
+    assert_result_ok(res, "manufacturing", layout, n_agents=12)
+    assert res.layout is not None
+
+
+def test_valid_input_is_returned_unchanged():
+    lay = wh.assemble(np.array([[0, 0, 2, 0, 0], [0, 2, 1, 2, 0], [0, 0, 2, 0, 0]], dtype=np.int32))
+    res = repair("warehouse_even", lay, n_shelves=1)
+    assert res.status == "optimal" and res.hamming == 0 and res.similarity == 1.0
+
+
+def test_impossible_shelf_count_reports_instead_of_raising():
+    lay = wh.assemble(np.zeros((5, 4), dtype=np.int32))
+    for method in ("neighbourhood", "full"):
+        res = repair("warehouse_even", lay, n_shelves=20, method=method, time_limit_s=10)
+        assert res.layout is None and res.status in ("infeasible", "no_solution")
+    # More shelves than storage cells: proven infeasible without a solve.
+    res = repair("warehouse_even", lay, n_shelves=21)
+    assert res.status == "infeasible" and res.layout is None
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_full_milp_is_optimal_and_no_worse_than_neighbourhood(seed):
+    rng = np.random.default_rng(seed)
+    lay = wh.assemble(rng.integers(0, 3, size=(7, 6)).astype(np.int32))
+    full = repair("warehouse_even", lay, n_shelves=6, method="full", time_limit_s=60)
+    fast = repair("warehouse_even", lay, n_shelves=6, **FAST)
+    assert full.status == "optimal"
+    assert_result_ok(full, "warehouse_even", lay, n_shelves=6)
+    assert_result_ok(fast, "warehouse_even", lay, n_shelves=6)
+    assert full.objective <= fast.objective
+
+
+def test_manufacturing_weights_and_similarity():
+    # A lone station without endpoints: moving stations costs 5, adding endpoints 1.
+    lay = np.zeros((6, 6), dtype=np.int32)
+    lay[2, 2], lay[2, 3], lay[3, 2] = 2, 3, 4
+    full = repair("manufacturing", lay, n_agents=10, method="full", time_limit_s=60)
+    assert full.status == "optimal"
+    assert np.array_equal(full.layout[[2, 2, 3], [2, 3, 2]], [2, 3, 4])  # stations kept
+    # Delta = sum p_i over unchanged tiles / (5 n).
+    n = lay.size
+    expected = (5 * 3 + (n - 3 - full.hamming)) / (5 * n)
+    assert full.similarity == pytest.approx(expected)
+
+
+def test_deterministic_for_a_seed():
+    rng = np.random.default_rng(7)
+    lay = rng.integers(0, 5, size=(10, 11)).astype(np.int32)
+    a = repair("manufacturing", lay, n_agents=20, seed=3, **FAST)
+    b = repair("manufacturing", lay, n_agents=20, seed=3, **FAST)
+    assert a.status == b.status and np.array_equal(a.layout, b.layout)
+
+
+@pytest.mark.skipif(not MAPS.is_dir(), reason="shared reference maps not present")
+def test_paper_example_matches_the_papers_repair():
+    lay = load_map(MAPS / "warehouse/paper_cma-mae_a5_even_33x36_unrepaired.json").to_array(wh.TILES)
+    res = repair("warehouse_even", lay)
+    assert_result_ok(res, "warehouse_even", lay)
+    assert res.hamming <= 32  # the paper's CPLEX repair moved 32 tiles
+    assert res.seconds < 10
