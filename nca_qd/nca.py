@@ -13,8 +13,6 @@ Search algorithms work on flat parameter vectors ``[d]``; :class:`NCAGenerator` 
 
 from __future__ import annotations
 
-from functools import partial
-
 import chex
 import flax.linen as nn
 import jax
@@ -73,8 +71,36 @@ class NCAGenerator:
         return x[0]
 
     def _generate_impl(self, flat_batch: jax.Array, seed: jax.Array, n_iters: int) -> jax.Array:
-        probs = jax.vmap(partial(self.rollout_probs, seed=seed, n_iters=n_iters))(flat_batch)
-        return jnp.argmax(probs, axis=-1).astype(jnp.int32)
+        # The same maths as ``vmap(rollout_probs)``, written as batched matmuls in a
+        # channels-first layout: vmapping the Flax conv over per-member weights becomes a
+        # grouped convolution that XLA's CPU backend runs about 3x slower (measured: 0.55 s vs
+        # 0.15 s for 150 generators x 50 steps at 16x16). ``tests/test_nca.py`` checks both
+        # paths agree.
+        params = jax.vmap(self.unflatten)(flat_batch)["params"]
+        b, n = flat_batch.shape[0], self.n_tiles
+        h, w = seed.shape
+
+        def weights(name: str) -> tuple[jax.Array, jax.Array]:
+            kernel = params[name]["kernel"]  # [b, kh, kw, in, out]
+            mat = kernel.reshape(b, -1, kernel.shape[-1])  # rows ordered (dy, dx, in)
+            return jnp.swapaxes(mat, 1, 2), params[name]["bias"][:, :, None]
+
+        (w1, b1), (w2, b2), (w3, b3) = (weights(k) for k in ("conv3x3", "conv1x1_a", "conv1x1_b"))
+        x0 = jnp.moveaxis(jax.nn.one_hot(seed, n, dtype=jnp.float32), -1, 0)
+        x0 = jnp.broadcast_to(x0, (b, n, h, w))
+
+        def step(x, _):
+            xp = jnp.pad(x, ((0, 0), (0, 0), (1, 1), (1, 1)))  # zero padding, as the conv's SAME
+            patches = jnp.concatenate(
+                [xp[:, :, dy : dy + h, dx : dx + w] for dy in range(3) for dx in range(3)], axis=1
+            ).reshape(b, 9 * n, h * w)
+            z = jax.nn.relu(jnp.einsum("bok,bkp->bop", w1, patches) + b1)
+            z = jax.nn.relu(jnp.einsum("bok,bkp->bop", w2, z) + b2)
+            out = jax.nn.sigmoid(jnp.einsum("bok,bkp->bop", w3, z) + b3)
+            return out.reshape(b, n, h, w), None
+
+        x, _ = jax.lax.scan(step, x0, None, length=n_iters)
+        return jnp.argmax(x, axis=1).astype(jnp.int32)
 
     def generate(self, flat_batch: jax.Array, seed: np.ndarray | jax.Array, n_iters: int) -> jax.Array:
         """Environments ``[b, H, W]`` (tile indices) from parameters ``[b, d]`` and a seed ``[H, W]``."""

@@ -1,6 +1,7 @@
 """Pictures: layouts in the paper's colours, archive heatmaps, metric curves.
 
-Matplotlib only, with the non-interactive Agg backend so it works on headless machines.
+Matplotlib only. No backend is forced: on a headless machine matplotlib falls back to Agg by
+itself, and in Jupyter the inline backend keeps working. Files are written with ``savefig``.
 """
 
 from __future__ import annotations
@@ -8,14 +9,11 @@ from __future__ import annotations
 import os
 from typing import Mapping, Sequence
 
-import matplotlib
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.colors import to_rgb
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.colors import to_rgb  # noqa: E402
-
-from nca_qd.io import atomic_write_bytes  # noqa: E402
+from nca_qd.io import atomic_write_bytes
 
 
 def layout_rgb(layout: np.ndarray, tiles: str, palette: Mapping[str, str]) -> np.ndarray:
