@@ -84,7 +84,7 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--sphere-iters", type=int, default=10_000)
     ap.add_argument("--maze-iters", type=int, default=20)
-    args = ap.parse_args(argv)
+    args = ap.parse_args([] if argv is None else argv)
     print("== foundation ==")
     bench_generation()
     bench_maze_iteration(args.maze_iters)
@@ -92,4 +92,6 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    import sys
+
+    main(sys.argv[1:])

@@ -68,7 +68,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--n-full", type=int, default=5)
     ap.add_argument("--full-limit", type=float, default=20.0)
     ap.add_argument("--seed", type=int, default=0)
-    args = ap.parse_args(argv)
+    args = ap.parse_args([] if argv is None else argv)
     rows: list = []
     compare: list = []
     t0 = time.perf_counter()
@@ -101,4 +101,6 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    import sys
+
+    main(sys.argv[1:])

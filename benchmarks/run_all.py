@@ -1,0 +1,34 @@
+"""``make bench``: every benchmark section in turn (each prints its own figures).
+
+    python -m benchmarks.run_all [section ...]   # sections: foundation, rhcr, repair, screen
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+import time
+
+SECTIONS = ["foundation", "rhcr", "repair", "screen"]
+
+
+def main(argv: list[str]) -> int:
+    chosen = argv or SECTIONS
+    unknown = [s for s in chosen if s not in SECTIONS]
+    if unknown:
+        print(f"error: unknown benchmark section(s) {unknown} (known: {SECTIONS})", file=sys.stderr)
+        return 2
+    for name in chosen:
+        try:
+            module = importlib.import_module(f"benchmarks.bench_{name}")
+        except ModuleNotFoundError:
+            print(f"== {name}: not available in this checkout ==")
+            continue
+        t0 = time.perf_counter()
+        module.main()
+        print(f"== {name}: {time.perf_counter() - t0:.0f} s ==", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
