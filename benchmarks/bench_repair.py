@@ -17,18 +17,17 @@ from __future__ import annotations
 import argparse
 import statistics
 import time
-from pathlib import Path
 
 import numpy as np
 
 from nca_qd.io import load_map
 from nca_qd.nca import NCAGenerator
 from nca_qd.repair import make_rules, repair
-from nca_qd.repair import manufacturing as mf
 from nca_qd.repair import warehouse as wh
 from nca_qd.repair.validator import check
+from nca_qd.io import reference_maps_dir
 
-PAPER = Path("/work/shared/reference/maps/warehouse/paper_cma-mae_a5_even_33x36_unrepaired.json")
+PAPER = reference_maps_dir() / "warehouse" / "paper_cma-mae_a5_even_33x36_unrepaired.json"
 
 
 def generated(domain: str, region: tuple[int, int], n: int, n_iters: int, seed: int) -> np.ndarray:

@@ -4,14 +4,13 @@ Prints, per layout: CPU-seconds per simulation, throughput (mean ± standard err
 seeds), success rate. Reference: the original C++ RHCR needs about 26-28 CPU-seconds for 200
 agents x 1,000 steps on the paper's 33x36 generated warehouse and 40-50 on manufacturing.
 The 101x102 warehouse with 1,000 agents runs under a wall-clock budget and reports how far it
-got. Layouts are looked up in $NCA_QD_MAPS, then maps/ in the repository, then the shared
-reference folder; missing ones are reported and skipped.
+got. Layouts come from :func:`nca_qd.io.reference_maps_dir` ($NCA_QD_MAPS or the shared
+reference folder); missing ones are reported and skipped.
 """
 
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +18,7 @@ import numpy as np
 from nca_qd.io import load_map
 from nca_qd.sim.rhcr import simulate_many
 from nca_qd.sim.scenario import tiles_for
+from nca_qd.io import reference_maps_dir
 
 SEEDS = [0, 1, 2]
 CASES = [  # (layout, scenario, agents, T, time budget per run in s)
@@ -29,14 +29,9 @@ CASES = [  # (layout, scenario, agents, T, time budget per run in s)
 ]
 
 
-def _maps_dirs() -> list[Path]:
-    repo = Path(__file__).resolve().parents[1]
-    dirs = [Path(os.environ["NCA_QD_MAPS"])] if os.environ.get("NCA_QD_MAPS") else []
-    return dirs + [repo / "maps", repo / "data" / "maps", Path("/work/shared/reference/maps")]
-
-
 def _find(rel: str) -> Path | None:
-    return next((d / rel for d in _maps_dirs() if (d / rel).is_file()), None)
+    path = reference_maps_dir() / rel
+    return path if path.is_file() else None
 
 
 def main() -> None:

@@ -1,9 +1,11 @@
-"""Render layout files to PNG in the paper's colours.
+"""Render layout files or archive elites to PNG in the paper's colours.
 
     python -m experiments.render layout=a.json out=a.png [compare=b.json] [domain=...]
+    python -m experiments.render run=<run dir> out=elites.png [elites=4 | elites=[12,340]] [size=eval]
 
-The core call is :func:`render_files` (a list of map files and titles -> one PNG), so archive
-elites can be drawn the same way. Without ``domain`` the alphabet is inferred from the tiles.
+The core call is :func:`render_files` (a list of map files and titles -> one PNG); archive elites
+are generated from the run's archive at the training or evaluation size and drawn the same way.
+Without ``domain`` the alphabet is inferred from the tiles.
 """
 
 from __future__ import annotations
@@ -14,25 +16,20 @@ from typing import Sequence
 from experiments.cli import compose_config, main_guard
 from nca_qd.errors import NcaQdError
 from nca_qd.io import load_map
-from nca_qd.repair import DOMAIN_NAMES
-from nca_qd.repair import manufacturing as mf
-from nca_qd.repair import warehouse as wh
+from nca_qd.domains import domain_class
 
 
 def tiles_and_palette(domain: str | None, chars: set[str]) -> tuple[str, dict[str, str]]:
     """Alphabet and palette of ``domain``, or guessed from the characters used."""
     if domain is None:
-        if chars & set("012"):
+        if chars & set("X "):
+            domain = "maze"
+        elif chars & set("012"):
             domain = "manufacturing"
-        elif chars <= set(wh.TILES):
-            domain = "warehouse_even"
         else:
-            domain = "manufacturing"
-    if domain not in DOMAIN_NAMES:
-        raise NcaQdError(f"unknown domain {domain!r} (known: {', '.join(DOMAIN_NAMES)})")
-    if domain == "manufacturing":
-        return mf.TILES, mf.PALETTE
-    return wh.TILES, wh.PALETTE
+            domain = "warehouse_even"
+    cls = domain_class(domain)
+    return cls.layout_tiles, dict(cls.palette)
 
 
 def render_files(out: str | Path, paths: Sequence[str | Path], titles: Sequence[str] | None = None,
@@ -49,10 +46,46 @@ def render_files(out: str | Path, paths: Sequence[str | Path], titles: Sequence[
     render_layouts(out, layouts, tiles, palette, titles)
 
 
+def render_elites(out: str | Path, run_dir: str | Path, elites, size: str = "train") -> None:
+    """Generate chosen elites of a run's result archive and draw them side by side."""
+    import numpy as np
+    from omegaconf import OmegaConf
+
+    from nca_qd.domains import make_domain
+    from nca_qd.experiment import load_archive, load_run_config, select_elites
+    from nca_qd.pipeline import generate, make_generator
+    from nca_qd.viz import render_layouts
+
+    if size not in ("train", "eval"):
+        raise NcaQdError(f"size must be train or eval, got {size!r}")
+    cfg = load_run_config(Path(run_dir))
+    archive = load_archive(run_dir, "result")
+    if isinstance(elites, int) or (isinstance(elites, str) and elites.isdigit()):
+        cells = select_elites(archive["objective"], int(elites))
+    else:
+        cells = np.asarray(OmegaConf.to_object(elites) if not isinstance(elites, list) else elites,
+                           dtype=int)
+        bad = [int(c) for c in cells if not (0 <= c < archive["objective"].size)
+               or not np.isfinite(archive["objective"][c])]
+        if bad:
+            raise NcaQdError(f"{run_dir}: no elite in cell(s) {bad}")
+    if len(cells) == 0:
+        raise NcaQdError(f"{run_dir}: the archive is empty")
+    domain = make_domain(cfg.domain)
+    regions = generate(domain, make_generator(domain), archive["genotypes"][cells], size)
+    layouts = [domain.assemble(r) for r in regions]
+    titles = [f"cell {c}: f={archive['objective'][c]:.3g}" for c in cells]
+    render_layouts(out, layouts, domain.layout_tiles, domain.palette, titles)
+
+
 def main(argv: list[str]) -> int:
     cfg = compose_config("render", argv)
+    if cfg.get("run") and cfg.out:
+        render_elites(cfg.out, cfg.run, cfg.elites, cfg.size)
+        print(cfg.out)
+        return 0
     if not cfg.layout or not cfg.out:
-        raise NcaQdError("give layout=<file.json> and out=<file.png>")
+        raise NcaQdError("give layout=<file.json> out=<file.png>, or run=<run dir> out=<file.png>")
     paths = [cfg.layout] + ([cfg.compare] if cfg.compare else [])
     domain = cfg.domain.name if cfg.get("domain") is not None else None
     render_files(cfg.out, paths, domain=domain)

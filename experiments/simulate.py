@@ -58,6 +58,14 @@ def _rhcr(scen: Scenario, s: RunSettings, seeds: list[int]) -> Iterator:
         yield from pool.map(one, seeds)  # the core releases the GIL: runs are parallel
 
 
+def _screen(scen: Scenario, s: RunSettings, seeds: list[int]) -> Iterator:
+    # JAX screening simulator: all seeds as one vmapped batch (window and time limit unused).
+    from nca_qd.sim.screen import simulate_scenarios
+
+    yield from simulate_scenarios([scen], s.agents, s.T, seeds, replan=s.replan,
+                                  record_paths=s.record_paths)[0]
+
+
 def _unavailable(name: str) -> Callable[[], Simulator]:
     def load() -> Simulator:
         ready = ", ".join(k for k, v in SIMULATORS.items() if v is not load)
@@ -68,7 +76,7 @@ def _unavailable(name: str) -> Callable[[], Simulator]:
 # name -> loader returning the simulator (a loader may refuse with a one-line NcaQdError).
 SIMULATORS: dict[str, Callable[[], Simulator]] = {
     "rhcr": lambda: _rhcr,
-    "screen": _unavailable("screen"),
+    "screen": lambda: _screen,
 }
 
 

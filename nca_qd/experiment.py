@@ -170,17 +170,9 @@ class Experiment:
 
     # --- outputs -------------------------------------------------------------------------
     def best_elites(self, state: QDState, n: int) -> tuple[np.ndarray, np.ndarray]:
-        """Up to ``n`` elites of the result archive: the best objective first, spread over cells."""
+        """Up to ``n`` elites of the result archive (see :func:`select_elites`)."""
         arr = archive_arrays(state.res_archive)
-        occ = np.flatnonzero(np.isfinite(arr["objective"]))
-        if occ.size == 0:
-            return np.empty((0, arr["genotypes"].shape[1])), np.empty((0,), int)
-        order = occ[np.lexsort((occ, -arr["objective"][occ]))]
-        top = order[arr["objective"][order] == arr["objective"][order[0]]]
-        if top.size >= n:  # many ties (the maze's binary objective): spread over the archive
-            pick = top[np.linspace(0, top.size - 1, n).round().astype(int)]
-        else:
-            pick = order[:n]
+        pick = select_elites(arr["objective"], n)
         return arr["genotypes"][pick], pick
 
     def write_outputs(self, state: QDState) -> None:
@@ -210,6 +202,19 @@ class Experiment:
             h, w = layouts[0].shape
             viz.render_layouts(self.run_dir / f"best_{which}.png", layouts, d.layout_tiles,
                                d.palette, [f"cell {c} ({h}x{w})" for c in cells])
+
+
+def select_elites(objective: np.ndarray, n: int) -> np.ndarray:
+    """Cells of up to ``n`` elites: the best objective first; when more than ``n`` share the
+    best value (the maze's binary objective), ``n`` of them spread evenly over the archive."""
+    occ = np.flatnonzero(np.isfinite(objective))
+    if occ.size == 0:
+        return occ
+    order = occ[np.lexsort((occ, -objective[occ]))]
+    top = order[objective[order] == objective[order[0]]]
+    if top.size >= n:
+        return top[np.linspace(0, top.size - 1, n).round().astype(int)]
+    return order[:n]
 
 
 def load_run_config(run_dir: Path) -> DictConfig:

@@ -147,3 +147,14 @@ def save_npz(path: str | os.PathLike, arrays: dict[str, np.ndarray]) -> None:
     buf = _io.BytesIO()
     np.savez_compressed(buf, **arrays)
     atomic_write_bytes(path, buf.getvalue())
+
+
+def reference_maps_dir() -> Path:
+    """Where the paper's reference layouts live: ``$NCA_QD_MAPS``, else ``shared/reference/maps``
+    beside the repository (the project's checkout layout), else ``/work/shared/reference/maps``.
+    The directory may not exist; callers skip or explain."""
+    env = os.environ.get("NCA_QD_MAPS")
+    if env:
+        return Path(env)
+    beside = Path(__file__).resolve().parents[2] / "shared" / "reference" / "maps"
+    return beside if beside.is_dir() else Path("/work/shared/reference/maps")

@@ -62,8 +62,11 @@ def render_layouts(
     scale = max(tile_inches, 3.0 / hmax)
     fig, axes = plt.subplots(1, n, figsize=(max(3.0, wsum * scale + n * 0.3), hmax * scale + 0.5),
                              squeeze=False)
+    import textwrap
+
     for ax, lay, title in zip(axes[0], layouts, titles):
-        draw_layout(ax, lay, tiles, palette, title)
+        width = max(20, int(lay.shape[1] * scale * 9))  # ~9 title characters per inch
+        draw_layout(ax, lay, tiles, palette, "\n".join(textwrap.wrap(title, width)))
     save_figure(fig, path)
 
 

@@ -7,8 +7,9 @@ from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
-SHARED_MAPS = REPO.parent / "shared" / "reference" / "maps"
+from nca_qd.io import reference_maps_dir
+
+SHARED_MAPS = reference_maps_dir()
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 

@@ -1,6 +1,5 @@
 """Warehouse and manufacturing domains: seeds, frame, measures, registry, evaluator message."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -9,9 +8,10 @@ from nca_qd.domains import make_domain
 from nca_qd.errors import NcaQdError
 from nca_qd.io import load_map
 from nca_qd.repair import warehouse as wh
+from nca_qd.io import reference_maps_dir
 from experiments.cli import compose_config
 
-MAPS = Path("/work/shared/reference/maps")
+MAPS = reference_maps_dir()
 
 
 def domain(name):

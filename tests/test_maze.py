@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from collections import deque
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -18,8 +17,9 @@ from nca_qd.domains.maze import (MazeDomain, horizon_for, longest_shortest_path,
 from nca_qd.io import load_map
 from nca_qd.measures import entropy
 from nca_qd.sim import maze_agent as ma
+from nca_qd.io import reference_maps_dir
 
-MAPS = Path(__file__).parents[2] / "shared" / "reference" / "maps" / "maze"
+MAPS = reference_maps_dir() / "maze"
 
 
 def make_cfg(names=("n_walls", "path_length"), kind="wall_follower", episodes=50):

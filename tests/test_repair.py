@@ -1,6 +1,5 @@
 """Repair: valid output or a status saying why not; exactness of the MILP; determinism."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -9,11 +8,11 @@ from hypothesis import strategies as st
 
 from nca_qd.io import load_map
 from nca_qd.repair import make_rules, repair
-from nca_qd.repair import manufacturing as mf
 from nca_qd.repair import warehouse as wh
 from nca_qd.repair.validator import check
+from nca_qd.io import reference_maps_dir
 
-MAPS = Path("/work/shared/reference/maps")
+MAPS = reference_maps_dir()
 FAST = dict(time_limit_s=20, improve_time_s=0.3)
 
 

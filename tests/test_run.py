@@ -119,3 +119,15 @@ def test_ctrl_c_leaves_a_resumable_checkpoint(tmp_path):
     assert out.returncode == 0, out.stderr[-2000:]
     rows = _metrics(run_dir)
     assert [int(r["iteration"]) for r in rows] == list(range(1, done + 3))
+
+
+def test_render_draws_archive_elites(full_run, tmp_path):
+    from experiments.render import render_elites
+    from nca_qd.errors import NcaQdError
+
+    run_dir, _, _ = full_run
+    out = tmp_path / "elites.png"
+    render_elites(out, run_dir, 2, "eval")
+    assert out.stat().st_size > 1000 and out.read_bytes()[:4] == b"\x89PNG"
+    with pytest.raises(NcaQdError, match="no elite in cell"):
+        render_elites(tmp_path / "x.png", run_dir, [256 * 162 - 1, 10**9], "train")

@@ -1,8 +1,6 @@
 """The independent validator: names each violated constraint and where; human layouts pass."""
 
-from pathlib import Path
 
-import numpy as np
 import pytest
 
 from nca_qd.io import load_map, rows_to_array
@@ -10,8 +8,9 @@ from nca_qd.repair import make_rules
 from nca_qd.repair import manufacturing as mf
 from nca_qd.repair import warehouse as wh
 from nca_qd.repair.validator import check, violation_mask, violations
+from nca_qd.io import reference_maps_dir
 
-MAPS = Path("/work/shared/reference/maps")
+MAPS = reference_maps_dir()
 
 # A valid 7x9 warehouse (storage 7x5), 4 shelves.
 WAREHOUSE = [

@@ -22,14 +22,17 @@ DOMAINS: dict[str, str] = {
 }
 
 
-def make_domain(cfg: Mapping[str, Any]) -> Domain:
-    """Build the domain named by ``cfg['name']`` from its config."""
-    name = cfg.get("name")
+def domain_class(name: str) -> type[Domain]:
+    """The class registered for ``name`` (its tiles and palette need no config)."""
     if name not in DOMAINS:
         raise NcaQdError(f"unknown domain {name!r} (known: {', '.join(sorted(DOMAINS))})")
     module_name, cls_name = DOMAINS[name].split(":")
-    cls = getattr(importlib.import_module(module_name), cls_name)
-    return cls(cfg)
+    return getattr(importlib.import_module(module_name), cls_name)
 
 
-__all__ = ["DOMAINS", "Domain", "EvalBatch", "Evaluator", "make_domain"]
+def make_domain(cfg: Mapping[str, Any]) -> Domain:
+    """Build the domain named by ``cfg['name']`` from its config."""
+    return domain_class(cfg.get("name"))(cfg)
+
+
+__all__ = ["DOMAINS", "Domain", "EvalBatch", "Evaluator", "domain_class", "make_domain"]

@@ -1,0 +1,158 @@
+"""The JAX screening simulator: every run's paths go through the independent checker."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import strategies as st
+
+from nca_qd.errors import NcaQdError
+from nca_qd.sim import screen
+from nca_qd.sim.checker import check_run, recount_tasks
+from nca_qd.sim.scenario import build_scenario
+from nca_qd.sim.screen import simulate, simulate_batch
+
+WAREHOUSE = [
+    "............",
+    "w.eeee.eeeew",
+    "..@@@@.@@@@.",
+    "..eeee.eeee.",
+    "w..........w",
+    "..eeee.eeee.",
+    "..@@@@.@@@@.",
+    "w.eeee.eeeew",
+    "............",
+]
+MANUFACTURING = [
+    "............",
+    "..ee....ee..",
+    ".e00e..e11e.",
+    "..ee....ee..",
+    "............",
+    "..ee....ee..",
+    ".e22e..e22e.",
+    "..ee....ee..",
+    "............",
+]
+# Shared settings so that most tests reuse one compiled program.
+N, T = 12, 40
+
+
+def run_checked(rows, scenario, n_agents=N, horizon=T, seed=0):
+    res = simulate(rows, scenario, n_agents, horizon, seed, record_paths=True)
+    report = check_run(res, rows)
+    assert report.finished_tasks == res.finished_tasks
+    assert res.throughput == pytest.approx(recount_tasks(res.paths, res.goals).sum() / horizon)
+    assert res.tile_visits.sum() == n_agents * res.stop_time
+    assert res.tile_visits.shape == (len(rows), len(rows[0]))
+    assert res.tasks_per_step.shape == (horizon,)
+    return res
+
+
+def test_warehouse_and_manufacturing_runs_pass_the_checker():
+    w = run_checked(WAREHOUSE, "warehouse_even")
+    assert w.success and w.stop_time == T and w.finished_tasks > 0
+    u = run_checked(WAREHOUSE, "warehouse_uneven", seed=3)
+    assert u.finished_tasks > 0
+    m = run_checked(MANUFACTURING, "manufacturing")
+    assert m.finished_tasks > 0
+    # dwell times are honoured: manufacturing goals carry dwell 2, 5 or 10
+    assert {int(d) for g in m.goals for d in g[:, 2]} <= {2, 5, 10}
+
+
+@st.composite
+def small_warehouses(draw):
+    """9 x 12 grids: random shelves/endpoints inside, workstations on the left/right border."""
+    rng = np.random.default_rng(draw(st.integers(0, 2**31 - 1)))
+    grid = rng.choice(list("....@e"), size=(9, 12))
+    grid[:, 0] = "."
+    grid[:, -1] = "."
+    grid[rng.integers(0, 9), 0] = "w"
+    grid[rng.integers(0, 9), -1] = "w"
+    grid[rng.integers(0, 9), rng.integers(1, 11)] = "e"
+    return ["".join(r) for r in grid]
+
+
+@settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(rows=small_warehouses(), seed=st.integers(0, 1000))
+def test_random_layouts_pass_the_checker(rows, seed):
+    try:
+        build_scenario(rows, "warehouse_even", n_agents=N)
+    except NcaQdError:
+        assume(False)
+    run_checked(rows, "warehouse_even", seed=seed)
+
+
+def test_deterministic_per_seed():
+    a = simulate(WAREHOUSE, "warehouse_even", N, T, 7, record_paths=True)
+    b = simulate(WAREHOUSE, "warehouse_even", N, T, 7, record_paths=True)
+    c = simulate(WAREHOUSE, "warehouse_even", N, T, 8, record_paths=True)
+    assert a.throughput == b.throughput
+    np.testing.assert_array_equal(a.paths, b.paths)
+    np.testing.assert_array_equal(a.tile_visits, b.tile_visits)
+    assert not np.array_equal(a.paths, c.paths)
+
+
+def test_vmapped_batch_equals_one_at_a_time():
+    other = [r.replace("@", ".") if i == 6 else r for i, r in enumerate(WAREHOUSE)]
+    batch = simulate_batch([WAREHOUSE, other], "warehouse_even", N, T, [0, 1], record_paths=True)
+    for rows, row in zip([WAREHOUSE, other], batch):
+        for seed, res in zip([0, 1], row):
+            one = simulate(rows, "warehouse_even", N, T, seed, record_paths=True)
+            check_run(res, rows)
+            assert res.throughput == one.throughput and res.stop_time == one.stop_time
+            np.testing.assert_array_equal(res.paths, one.paths)
+            np.testing.assert_array_equal(res.tasks_per_step, one.tasks_per_step)
+            np.testing.assert_array_equal(res.tile_visits, one.tile_visits)
+            assert all(np.array_equal(x, y) for x, y in zip(res.goals, one.goals))
+
+
+def test_congestion_stops_a_jammed_run():
+    corridor = ["weeeeeeeew"]  # 1-wide, every tile taken: nobody can ever move
+    res = simulate(corridor, "warehouse_even", 10, 30, 0, record_paths=True)
+    assert res.congested and not res.success
+    assert res.stop_time == 5  # the first congestion check (h = 5)
+    check_run(res, corridor)
+    assert res.tasks_per_step[5:].sum() == 0
+    assert res.throughput == pytest.approx(res.finished_tasks / 30)
+
+
+@pytest.mark.parametrize("rows, scenario, agents, horizon, message", [
+    (WAREHOUSE, "warehouse_even", 500, 10, "traversable tiles"),
+    (WAREHOUSE, "warehouse_odd", 5, 10, "unknown scenario"),
+    (["w.e@.e.w"], "warehouse_even", 2, 10, "not all connected"),
+    (["w.e.x..w"], "warehouse_even", 2, 10, "x"),
+    (WAREHOUSE, "warehouse_even", 0, 10, "at least one agent"),
+    (WAREHOUSE, "warehouse_even", 5, 0, "horizon"),
+    ([WAREHOUSE, WAREHOUSE[:-1]], "warehouse_even", 5, 10, "one shape"),
+])
+def test_bad_input_errors_before_compilation(monkeypatch, rows, scenario, agents, horizon, message):
+    def no_compile(*a, **k):
+        raise AssertionError("compiled despite bad input")
+
+    monkeypatch.setattr(screen, "_batched", no_compile)
+    layouts = rows if isinstance(rows[0], list) else [rows]
+    with pytest.raises(NcaQdError, match=message):
+        simulate_batch(layouts, scenario, agents, horizon, [0])
+
+
+def test_cli_screen_prints_runs_and_summary(tmp_path):
+    layout = tmp_path / "wh.json"
+    layout.write_text(json.dumps({"name": "wh", "layout": WAREHOUSE}))
+    out = tmp_path / "paths.npz"
+    proc = subprocess.run(
+        [sys.executable, "-m", "experiments.simulate", "domain=warehouse_even",
+         f"layout={layout}", f"agents={N}", f"T={T}", "seeds=2", "seed=3", "simulator=screen",
+         f"paths_out={out}"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    lines = [json.loads(x) for x in proc.stdout.strip().splitlines()]
+    assert [r["seed"] for r in lines[:2]] == [3, 4] and lines[2]["summary"]
+    for r in lines[:2]:
+        assert set(r) >= {"seed", "throughput", "success", "stop_time", "cpu_seconds"}
+    with np.load(out) as z:
+        assert z["paths_seed3"].shape == (T + 1, N, 2)
