@@ -131,3 +131,15 @@ def test_render_draws_archive_elites(full_run, tmp_path):
     assert out.stat().st_size > 1000 and out.read_bytes()[:4] == b"\x89PNG"
     with pytest.raises(NcaQdError, match="no elite in cell"):
         render_elites(tmp_path / "x.png", run_dir, [256 * 162 - 1, 10**9], "train")
+
+
+@pytest.mark.parametrize("algo", ["map_elites", "cma_es"])
+def test_baselines_run_end_to_end(algo, tmp_path):
+    state = Experiment(_cfg(f"algo={algo}", "qd.n_evals=16", "output.pictures=false"),
+                       tmp_path / algo).run()
+    assert int(state.evaluations) == 16
+    assert bool(np.isfinite(np.asarray(state.res_archive.fitnesses)).any())
+    # the baselines use a plain archive: thresholds equal the elites' objectives
+    occupied = np.asarray(state.opt_archive.occupied)
+    np.testing.assert_array_equal(np.asarray(state.opt_archive.thresholds)[occupied],
+                                  np.asarray(state.opt_archive.fitnesses[:, 0])[occupied])
