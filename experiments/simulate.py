@@ -132,9 +132,10 @@ def summarize(runs: list[dict]) -> dict:
     """Mean and standard error of throughput over all runs, and the success rate."""
     thr = np.array([r["throughput"] for r in runs], dtype=float)
     se = float(thr.std(ddof=1) / math.sqrt(len(thr))) if len(thr) > 1 else 0.0
-    return {"summary": True, "runs": len(runs), "throughput_mean": float(thr.mean()),
-            "throughput_se": se, "success_rate": float(np.mean([r["success"] for r in runs])),
-            "cpu_seconds_mean": float(np.mean([r["cpu_seconds"] for r in runs]))}
+    return {"summary": True, "runs": len(runs), "throughput_mean": round(float(thr.mean()), 6),
+            "throughput_se": round(se, 6),
+            "success_rate": round(float(np.mean([r["success"] for r in runs])), 6),
+            "cpu_seconds_mean": round(float(np.mean([r["cpu_seconds"] for r in runs])), 3)}
 
 
 def _write_paths(path: str, recorded: dict) -> None:
