@@ -5,7 +5,8 @@
 Prints one JSON line per run (seed, throughput, success, stop_time, cpu_seconds, ...) in seed
 order, then a summary line (mean and standard error of throughput over all runs, success
 rate). Simulators are entries of :data:`SIMULATORS`; ``simulator=rhcr`` (default) is the exact
-RHCR simulator, another simulator is one more entry there.
+RHCR simulator, ``simulator=screen`` the JAX screening approximation (all seeds as one vmapped
+batch); another simulator is one more entry there.
 """
 
 from __future__ import annotations
@@ -64,13 +65,6 @@ def _screen(scen: Scenario, s: RunSettings, seeds: list[int]) -> Iterator:
 
     yield from simulate_scenarios([scen], s.agents, s.T, seeds, replan=s.replan,
                                   record_paths=s.record_paths)[0]
-
-
-def _unavailable(name: str) -> Callable[[], Simulator]:
-    def load() -> Simulator:
-        ready = ", ".join(k for k, v in SIMULATORS.items() if v is not load)
-        raise NcaQdError(f"simulator={name} is not available yet (available: {ready})")
-    return load
 
 
 # name -> loader returning the simulator (a loader may refuse with a one-line NcaQdError).
@@ -132,8 +126,8 @@ def summarize(runs: list[dict]) -> dict:
     """Mean and standard error of throughput over all runs, and the success rate."""
     thr = np.array([r["throughput"] for r in runs], dtype=float)
     se = float(thr.std(ddof=1) / math.sqrt(len(thr))) if len(thr) > 1 else 0.0
-    return {"summary": True, "runs": len(runs), "throughput_mean": round(float(thr.mean()), 6),
-            "throughput_se": round(se, 6),
+    return {"summary": True, "runs": len(runs), "throughput_mean": round(float(thr.mean()), 9),
+            "throughput_se": round(se, 9),
             "success_rate": round(float(np.mean([r["success"] for r in runs])), 6),
             "cpu_seconds_mean": round(float(np.mean([r["cpu_seconds"] for r in runs])), 3)}
 

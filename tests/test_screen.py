@@ -156,3 +156,25 @@ def test_cli_screen_prints_runs_and_summary(tmp_path):
         assert set(r) >= {"seed", "throughput", "success", "stop_time", "cpu_seconds"}
     with np.load(out) as z:
         assert z["paths_seed3"].shape == (T + 1, N, 2)
+
+
+def test_crowding_proxy_stops_a_packed_room_that_rhcrs_rule_lets_run():
+    room = ["w.......w", ".eeeeeee.", ".........", ".eeeeeee.", "w.......w", ".eeeeeee.",
+            ".........", ".eeeeeee.", "w.......w"]
+    crowded = simulate(room, "warehouse_even", 60, T, 0, record_paths=True, congestion="crowding")
+    check_run(crowded, room)
+    assert crowded.congested and crowded.stop_time == 15  # 3 checks with >= 20 agents in 5x5
+    assert (crowded.crowding[:3] >= 20).all()
+    moved = simulate(room, "warehouse_even", 60, T, 0, record_paths=True, congestion="moved")
+    check_run(moved, room)
+    assert moved.success and moved.stop_time == T
+    np.testing.assert_array_equal(moved.paths[:16], crowded.paths)  # same run up to the stop
+
+
+@pytest.mark.parametrize("option, message", [({"congestion": "jam"}, "congestion rule"),
+                                             ({"priority": "oldest"}, "priority"),
+                                             ({"replan": 0}, "replan")])
+def test_bad_options_error_before_compilation(monkeypatch, option, message):
+    monkeypatch.setattr(screen, "_batched", lambda *a, **k: pytest.fail("compiled"))
+    with pytest.raises(NcaQdError, match=message):
+        simulate_batch([WAREHOUSE], "warehouse_even", 5, 10, [0], **option)

@@ -66,7 +66,7 @@ def test_prints_one_line_per_run_and_a_summary(tmp_path):
     (WAREHOUSE, ["domain=warehouse_mixed"], "unknown scenario"),
     (WAREHOUSE, ["T=0"], "T must be >= 1"),
     (WAREHOUSE, ["T=-5"], "T must be >= 1"),
-    (WAREHOUSE, ["simulator=screen"], "not available yet"),
+    (WAREHOUSE, ["simulator=quantum"], "unknown simulator 'quantum'"),
     (WAREHOUSE, ["domain=manufacturing"], "unknown tile"),
 ])
 def test_bad_input_is_one_line_exit_2(tmp_path, rows, args, message):

@@ -1,0 +1,246 @@
+"""Screening simulator (nca_qd.sim.screen): fidelity against exact RHCR, and speed.
+
+    .venv/bin/python -m benchmarks.bench_screen            # everything (~10 CPU-minutes)
+    BENCH_SCREEN_PARTS=speed .venv/bin/python -m benchmarks.bench_screen
+
+Fidelity: >= 40 varied 33x36 warehouse layouts (the human-designed one, the paper's generated
+one and its unrepaired version, human variants with shelf blocks removed, paper variants
+with random tile mutations, random-aisle warehouses; all valid by ``build_scenario``), 200
+agents, T=1,000, 5 seeds each, warehouse_even. Reports the Spearman rank correlation of mean
+throughput (screen vs RHCR, threads=1) and the agreement on congestion (majority success over
+the seeds, and per run). ``BENCH_SCREEN_RHCR_CACHE=<file.json>`` keeps the RHCR figures
+outside git between runs (optional). The layout generator runs with seed 1: the screen's
+"crowding" congestion constants were calibrated on the seed-0 set, so these figures are
+held out. Both congestion rules are reported ("crowding", the default, and "moved", RHCR's
+rule alone).
+
+Speed: 50 layouts x 5 seeds x 200 agents x 1,000 steps as one vmapped batch (after
+compilation), and 101x102 with 1,400 agents x 5,000 steps (one run).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from nca_qd.errors import NcaQdError
+from nca_qd.io import load_map
+from nca_qd.sim.scenario import build_scenario
+
+MAPS = Path("/work/shared/reference/maps/warehouse")
+SCENARIO, AGENTS, T, SEEDS = "warehouse_even", 200, 1000, [0, 1, 2, 3, 4]
+
+
+def _find(name: str) -> Path | None:
+    env = os.environ.get("NCA_QD_MAPS")
+    dirs = [Path(env) / "warehouse"] if env else []
+    repo = Path(__file__).resolve().parents[1]
+    for d in dirs + [repo / "maps" / "warehouse", MAPS]:
+        if (d / name).is_file():
+            return d / name
+    return None
+
+
+def _load(name: str) -> list[str] | None:
+    p = _find(name)
+    return None if p is None else load_map(p).rows
+
+
+def _valid(rows: list[str]) -> bool:
+    try:
+        build_scenario(rows, SCENARIO, n_agents=AGENTS)
+        return True
+    except NcaQdError:
+        return False
+
+
+def _human_variant(rows: list[str], rng: np.random.Generator, p: float) -> list[str]:
+    """Remove each horizontal shelf run with probability p (its endpoints sometimes too)."""
+    g = np.array([list(r) for r in rows])
+    for r in range(g.shape[0]):
+        c = 0
+        while c < g.shape[1]:
+            if g[r, c] != "@":
+                c += 1
+                continue
+            e = c
+            while e < g.shape[1] and g[r, e] == "@":
+                e += 1
+            if rng.random() < p:
+                g[r, c:e] = "."
+                for rr in (r - 1, r + 1):
+                    if 0 <= rr < g.shape[0] and rng.random() < 0.5:
+                        g[rr, c:e] = np.where(g[rr, c:e] == "e", ".", g[rr, c:e])
+            c = e
+    return ["".join(x) for x in g]
+
+
+def _mutate(rows: list[str], rng: np.random.Generator, m: int) -> list[str]:
+    """Set m random interior tiles to '.', '@' or 'e' (workstations kept)."""
+    g = np.array([list(r) for r in rows])
+    h, w = g.shape
+    for _ in range(m):
+        r, c = rng.integers(1, h - 1), rng.integers(2, w - 2)
+        if g[r, c] != "w":
+            g[r, c] = rng.choice(list(".@@e"))
+    return ["".join(x) for x in g]
+
+
+def _random_warehouse(rng: np.random.Generator, h: int = 33, w: int = 36) -> list[str]:
+    """Shelf rows with random run lengths, aisle gaps and row spacing; workstations on the
+    left and right borders; endpoints above and below shelves."""
+    g = np.full((h, w), ".")
+    for r in range(1, h - 1, 3):
+        g[r, 0] = g[r, w - 1] = "w"
+    r = 2
+    while r < h - 2:
+        c = 2 + int(rng.integers(0, 2))
+        while c < w - 3:
+            run = int(rng.integers(2, 12))
+            end = min(c + run, w - 2)
+            g[r, c:end] = "@"
+            for rr in (r - 1, r + 1):
+                g[rr, c:end] = np.where(g[rr, c:end] == ".", "e", g[rr, c:end])
+            c = end + int(rng.integers(1, 4))
+        r += int(rng.integers(3, 5))
+    return ["".join(x) for x in g]
+
+
+def make_layouts(n_min: int = 40, seed: int = 1) -> list[tuple[str, list[str]]]:
+    """The fidelity set: (name, rows), all valid 33x36 warehouse layouts."""
+    rng = np.random.default_rng(seed)
+    out = []
+    human = _load("human_33x36.json")
+    paper = _load("paper_cma-mae_a5_even_33x36.json")
+    unrep = _load("paper_cma-mae_a5_even_33x36_unrepaired.json")
+    for name, rows in (("human", human), ("paper", paper), ("paper_unrepaired", unrep)):
+        if rows is not None and _valid(rows):
+            out.append((name, list(rows)))
+    i = 0
+    while human is not None and i < 12:
+        rows = _human_variant(human, rng, p=0.1 + 0.05 * i)
+        if _valid(rows):
+            out.append((f"human_minus_{i}", rows))
+            i += 1
+    i = 0
+    while paper is not None and i < 12:
+        rows = _mutate(paper, rng, m=15 + 15 * i)
+        if _valid(rows):
+            out.append((f"paper_mut_{i}", rows))
+            i += 1
+    i = 0
+    while len(out) < n_min or i < 14:
+        rows = _random_warehouse(rng)
+        if _valid(rows):
+            out.append((f"random_{i}", rows))
+            i += 1
+    return out
+
+
+def rhcr_figures(layouts, cache: str | None) -> dict:
+    """name -> list of (throughput, success) over SEEDS, exact RHCR, threads=1."""
+    from nca_qd.sim.rhcr import simulate_many
+
+    done = json.loads(Path(cache).read_text()) if cache and Path(cache).is_file() else {}
+    for name, rows in layouts:
+        if name in done:
+            continue
+        runs = simulate_many(rows, SCENARIO, AGENTS, T, SEEDS, threads=1)
+        done[name] = [[r.throughput, r.success, r.cpu_seconds] for r in runs]
+        if cache:
+            Path(cache).write_text(json.dumps(done))
+    return done
+
+
+def screen_figures(layouts, congestion: str) -> tuple[dict, float]:
+    from nca_qd.sim.screen import simulate_batch
+
+    t0 = time.perf_counter()
+    res = simulate_batch([rows for _, rows in layouts], SCENARIO, AGENTS, T, SEEDS,
+                         congestion=congestion)
+    wall = time.perf_counter() - t0
+    return {name: [[r.throughput, r.success] for r in runs]
+            for (name, _), runs in zip(layouts, res)}, wall
+
+
+def _spearman(x, y) -> float:
+    from scipy.stats import spearmanr
+    return float(spearmanr(x, y).statistic)
+
+
+def fidelity() -> None:
+    layouts = make_layouts()
+    print(f"== fidelity: {len(layouts)} layouts 33x36, {SCENARIO}, {AGENTS} agents, T={T}, "
+          f"{len(SEEDS)} seeds")
+    t0 = time.perf_counter()
+    exact = rhcr_figures(layouts, os.environ.get("BENCH_SCREEN_RHCR_CACHE"))
+    print(f"rhcr: {time.perf_counter() - t0:.0f} s wall")
+    names = [n for n, _ in layouts]
+    ex_thr = np.array([np.mean([r[0] for r in exact[n]]) for n in names])
+    ex_ok = np.array([[r[1] for r in exact[n]] for n in names], bool)
+    for congestion in ("crowding", "moved"):
+        screen, wall = screen_figures(layouts, congestion)
+        print(f"screen congestion={congestion}: {wall:.1f} s wall for the batch "
+              f"({len(layouts) * len(SEEDS)} runs, compilation included)")
+        sc_thr = np.array([np.mean([r[0] for r in screen[n]]) for n in names])
+        sc_ok = np.array([[r[1] for r in screen[n]] for n in names], bool)
+        if congestion == "crowding":
+            for n, a, b, ea, sb in zip(names, ex_thr, sc_thr, ex_ok, sc_ok):
+                print(f"  {n:22s} rhcr {a:6.3f} ok {ea.sum()}/5   screen {b:6.3f} ok {sb.sum()}/5")
+        rho = _spearman(ex_thr, sc_thr)
+        maj = float(np.mean((ex_ok.mean(1) > 0.5) == (sc_ok.mean(1) > 0.5)))
+        run = float(np.mean(ex_ok == sc_ok))
+        print(json.dumps({"congestion": congestion, "layouts": len(names),
+                          "spearman_mean_throughput": round(rho, 3),
+                          "congestion_agreement_layout_majority": round(maj, 3),
+                          "congestion_agreement_per_run": round(run, 3),
+                          "rhcr_success_rate": round(float(ex_ok.mean()), 3),
+                          "screen_success_rate": round(float(sc_ok.mean()), 3)}))
+
+
+def speed() -> None:
+    from nca_qd.sim.screen import simulate_batch
+
+    layouts = make_layouts(50)[:50]
+    rows = [r for _, r in layouts]
+    print(f"== speed (congestion='moved', so runs go the full horizon): {len(rows)} layouts x "
+          f"{len(SEEDS)} seeds x {AGENTS} agents x {T} steps")
+    t0 = time.perf_counter()
+    simulate_batch(rows, SCENARIO, AGENTS, T, SEEDS, congestion="moved")
+    first = time.perf_counter() - t0
+    t0, c0 = time.perf_counter(), time.process_time()
+    res = simulate_batch(rows, SCENARIO, AGENTS, T, SEEDS, congestion="moved")
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    print(f"first call (with compilation) {first:.1f} s; after compilation {wall:.1f} s wall, "
+          f"{cpu:.1f} s CPU; mean throughput {np.mean([r.throughput for x in res for r in x]):.3f}")
+    big = _load("human_101x102.json")
+    if big is None:
+        print("human_101x102.json not found, skipped")
+        return
+    n, steps = 1400, int(os.environ.get("BENCH_SCREEN_BIG_T", 5000))
+    t0 = time.perf_counter()
+    simulate_batch([big], SCENARIO, n, 10, [0], congestion="moved")
+    comp = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    r = simulate_batch([big], SCENARIO, n, steps, [0], congestion="moved")[0][0]
+    wall = time.perf_counter() - t0
+    print(f"101x102, {n} agents x {steps} steps: {wall:.1f} s wall after compilation "
+          f"(distance table included; compile+10 steps {comp:.1f} s); "
+          f"throughput {r.throughput:.3f}, "
+          f"success {r.success}, stop_time {r.stop_time}")
+
+
+def main() -> None:
+    parts = os.environ.get("BENCH_SCREEN_PARTS", "fidelity,speed").split(",")
+    if "speed" in parts:
+        speed()
+    if "fidelity" in parts:
+        fidelity()
+
+
+if __name__ == "__main__":
+    main()

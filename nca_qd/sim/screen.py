@@ -1,0 +1,643 @@
+"""Screening lifelong-MAPF simulator in JAX: jitted, vmapped over layouts and seeds.
+
+A fast approximation of the exact RHCR simulator (:mod:`nca_qd.sim.rhcr`) for ranking many
+layouts. Same task model (:func:`nca_qd.sim.scenario.build_scenario`): goal classes, class
+cycle with a uniformly drawn first kind, weighted goal cells, dwell times, distinct uniform
+initial cells, RHCR's congestion rule (every ``replan`` = h steps: more than half of the
+agents neither moved nor dwelt during those h steps -> stop, failure) and throughput =
+finished tasks / T with T the full horizon. By default (``congestion="crowding"``) a run also
+stops, as congested, when for 3 consecutive checks some 5x5 block holds >= 20 agents: a
+calibrated proxy for the dense jams in which RHCR's windowed PBS collapses but PIBT does not
+(``congestion="moved"`` applies RHCR's rule alone).
+
+Planning differs: instead of windowed PBS over space-time A* replanned every h steps, every
+timestep each agent takes one step by PIBT (Okumura et al. 2022), run as an explicit stack in
+a ``lax.while_loop``. Dwelling agents stay. An agent whose best tile is empty and a candidate
+of no other agent takes it (PIBT would give it that tile in any order). The others, as roots
+in priority order, claim the best free candidate among {stay, 4 neighbours} ranked by the
+true distance to the goal (random ties among moves); if the tile holds an undecided agent,
+that agent is pushed (priority inheritance: it must move, not onto its pusher's tile,
+possibly away from its goal); a pushed agent that finds no tile stays and its pusher tries
+its next candidate. No vertex or swap conflict can occur (rotations of three or more agents
+can, as the checker allows). Priority: ``"random"`` (default) draws a fresh agent order
+every step, which avoids PIBT's standing deadlocks in cluttered layouts; ``"age"`` is PIBT's
+(steps since the last finished goal, fixed random tie-break).
+
+How it differs from RHCR in outcome (measured in ``benchmarks/bench_screen.py``, 41 held-out
+33x36 layouts, 200 agents): PIBT keeps traffic moving by pushing agents back, so with RHCR's
+rule alone it almost never congests where windowed PBS collapses (e.g. the human-designed
+warehouse), Spearman 0.37; with the crowding proxy Spearman 0.81 and 73 % agreement on
+congestion (it is too pessimistic on random-aisle layouts). Its throughput is ~25 % below
+RHCR's where RHCR runs freely (no lookahead). Rank layouts with it; do not take its
+success/failure verdict as RHCR's.
+
+Distances (true shortest paths from every goal cell to every cell) are computed in JAX per
+layout by repeated relaxation of all goal cells at once, stored as int16 ``[G, H*W]``.
+
+Random streams are counter-based (a 32-bit integer hash of seed, agent, goal index, time), so
+goal ``k`` of agent ``a`` is a pure function of (seed, a, k): the goal log is rebuilt after the
+run instead of being carried through it. Streams do not match RHCR's.
+
+>>> r = simulate(rows, "warehouse_even", n_agents=200, T=1000, seed=0)
+>>> grid = simulate_batch([rows_a, rows_b], "warehouse_even", 200, 1000, seeds=range(5))
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import NamedTuple, Sequence
+
+import numpy as np
+
+from nca_qd.errors import NcaQdError
+from nca_qd.sim.scenario import Scenario, build_scenario
+
+__all__ = ["ScreenResult", "LayoutArrays", "simulate", "simulate_batch", "simulate_scenarios",
+           "prepare", "goal_log"]
+
+INF16 = 30000  # "unreachable" in the int16 distance table
+PRIORITY = "random"   # "random": fresh random agent order each step; "age": PIBT's (steps
+                      # since the last finished goal, fixed random tie-break)
+# "crowding" congestion (default): RHCR's rule, or DENSITY_CHECKS consecutive checks at which
+# some DENSITY_K x DENSITY_K block holds >= DENSITY_MAX agents -- a proxy for the dense jams
+# in which RHCR's windowed PBS collapses and PIBT does not. Calibrated on 41 layouts of
+# benchmarks/bench_screen.py's generator with seed 0; its fidelity figures use seed 1.
+DENSITY_K = 5
+DENSITY_MAX = 20
+DENSITY_CHECKS = 3
+CONGESTION = "crowding"  # or "moved" (RHCR's rule alone), or "progress" (more than half
+                         # neither finished a goal, dwelt, nor ended the h steps closer to it)
+_PAD = 64      # goal-table and class sizes are padded to multiples of this (fewer recompiles)
+
+
+@dataclass
+class ScreenResult:
+    """Outcome of one screening run; duck-types :class:`nca_qd.sim.rhcr.SimResult` for
+    :func:`nca_qd.sim.checker.check_run` and ``experiments.simulate``.
+
+    ``cpu_seconds`` / ``wall_seconds`` are the batch's process CPU / wall time divided by the
+    number of runs in the batch (compilation excluded when it was already compiled).
+    ``goals[a]`` is ``[k, 3]`` (row, col, dwell): the goals agent ``a`` finished, then its
+    current one. ``paths`` (when recorded) is ``[stop_time + 1, n_agents, 2]``.
+    """
+
+    scenario: str
+    seed: int
+    n_agents: int
+    T: int
+    throughput: float
+    success: bool
+    congested: bool
+    stop_time: int
+    finished_tasks: int
+    tasks_per_step: np.ndarray
+    tile_visits: np.ndarray
+    cpu_seconds: float
+    wall_seconds: float
+    goals: list[np.ndarray] = field(repr=False)
+    paths: np.ndarray | None = field(default=None, repr=False)
+    timed_out: bool = False
+    # share of agent-steps (not dwelling) that did not bring the agent closer to its goal
+    delay_rate: float = 0.0
+    # the most agents in one DENSITY_K x DENSITY_K block, at each congestion check
+    crowding: np.ndarray | None = field(default=None, repr=False)
+
+    def summary(self) -> dict:
+        return {"seed": self.seed, "throughput": self.throughput, "success": self.success,
+                "stop_time": self.stop_time, "cpu_seconds": round(self.cpu_seconds, 3),
+                "timed_out": False, "congested": self.congested}
+
+
+class LayoutArrays(NamedTuple):
+    """One layout (or a batch, with a leading axis) as padded arrays."""
+
+    traversable: np.ndarray   # bool [H, W]
+    goal_cells: np.ndarray    # int32 [G] flat cell of each distinct goal cell, -1 = padding
+    class_goal: np.ndarray    # int32 [C, K] index into goal_cells, 0 = padding
+    class_cum: np.ndarray     # float32 [C, K] cumulative weights, +inf = padding
+    class_count: np.ndarray   # int32 [C]
+    class_dwell: np.ndarray   # int32 [C]
+
+
+def _round_up(n: int, m: int = _PAD) -> int:
+    return max(m, -(-n // m) * m)
+
+
+def prepare(scens: Sequence[Scenario], pad_goals: int | None = None,
+            pad_class: int | None = None) -> LayoutArrays:
+    """Stack validated scenarios of one scenario kind and one shape into padded arrays."""
+    if not scens:
+        raise NcaQdError("no layouts to simulate")
+    names = {s.name for s in scens}
+    shapes = {s.shape for s in scens}
+    if len(names) != 1 or len(shapes) != 1:
+        raise NcaQdError(f"a batch needs layouts of one scenario and one shape, got "
+                         f"{sorted(names)} and {sorted(shapes)}")
+    uniq = [np.unique(np.concatenate([c.cells for c in s.classes])) for s in scens]
+    G = pad_goals or _round_up(max(u.size for u in uniq))
+    K = pad_class or _round_up(max(c.cells.size for s in scens for c in s.classes))
+    C = len(scens[0].classes)
+    out = []
+    for s, u in zip(scens, uniq):
+        gc = np.full(G, -1, np.int32)
+        gc[: u.size] = u
+        cg = np.zeros((C, K), np.int32)
+        cum = np.full((C, K), np.inf, np.float32)
+        for i, c in enumerate(s.classes):
+            cg[i, : c.cells.size] = np.searchsorted(u, c.cells)
+            cum[i, : c.cells.size] = np.cumsum(c.weights)
+        out.append(LayoutArrays(
+            s.traversable.astype(bool), gc, cg, cum,
+            np.array([c.cells.size for c in s.classes], np.int32),
+            np.array([c.dwell for c in s.classes], np.int32)))
+    return LayoutArrays(*(np.stack(x) for x in zip(*out)))
+
+
+# ----------------------------------------------------------------------------- JAX core
+def _jax():
+    import jax
+    import jax.numpy as jnp
+    return jax, jnp
+
+
+def _mix(x):
+    """32-bit integer hash (murmur3 finaliser) on uint32 arrays."""
+    _, jnp = _jax()
+    x = x ^ (x >> 16)
+    x = x * jnp.uint32(0x85EBCA6B)
+    x = x ^ (x >> 13)
+    x = x * jnp.uint32(0xC2B2AE35)
+    return x ^ (x >> 16)
+
+
+def _hash(*parts):
+    _, jnp = _jax()
+    h = jnp.uint32(0x9E3779B9)
+    for p in parts:
+        h = _mix(h ^ (jnp.asarray(p).astype(jnp.uint32) + jnp.uint32(0x7F4A7C15)))
+    return h
+
+
+def _uniform(h):
+    _, jnp = _jax()
+    return (h >> 8).astype(jnp.float32) * jnp.float32(1.0 / 16777216.0)
+
+
+def distance_table(traversable, goal_cells):
+    """int16 ``[G, H*W]`` shortest-path distances from each goal cell (INF16: unreachable)."""
+    jax, jnp = _jax()
+    H, W = traversable.shape
+    G = goal_cells.shape[0]
+    inf = jnp.int16(INF16)
+    flat = jnp.full((G, H * W), inf, jnp.int16)
+    flat = flat.at[jnp.arange(G), jnp.clip(goal_cells, 0)].set(
+        jnp.where(goal_cells >= 0, jnp.int16(0), inf))
+    d0 = flat.reshape(G, H, W)
+    trav = traversable[None]
+
+    def relax(d):
+        pad = jnp.pad(d, ((0, 0), (1, 1), (1, 1)), constant_values=INF16)
+        best = jnp.minimum(jnp.minimum(pad[:, :-2, 1:-1], pad[:, 2:, 1:-1]),
+                           jnp.minimum(pad[:, 1:-1, :-2], pad[:, 1:-1, 2:]))
+        best = jnp.minimum(best, inf - 1) + 1
+        return jnp.where(trav, jnp.minimum(d, best), inf)
+
+    def cond(c):
+        return c[1]
+
+    def body(c):
+        d, _ = c
+        nd = relax(d)
+        return nd, jnp.any(nd != d)
+
+    d, _ = jax.lax.while_loop(cond, body, (d0, jnp.bool_(True)))
+    return d.reshape(G, H * W)
+
+
+def _neighbours(traversable):
+    """``[H*W, 5]`` candidate cells (stay, up, down, left, right) and whether each is legal."""
+    _, jnp = _jax()
+    H, W = traversable.shape
+    r, c = jnp.divmod(jnp.arange(H * W), W)
+    dr = jnp.array([0, -1, 1, 0, 0])
+    dc = jnp.array([0, 0, 0, -1, 1])
+    rr, cc = r[:, None] + dr, c[:, None] + dc
+    inside = (rr >= 0) & (rr < H) & (cc >= 0) & (cc < W)
+    cell = jnp.where(inside, rr * W + cc, H * W)
+    ok = inside & jnp.concatenate([traversable.reshape(-1), jnp.zeros(1, bool)])[cell]
+    return jnp.where(ok, cell, H * W).astype(jnp.int32), ok
+
+
+def _draw_goal(lay: LayoutArrays, cycle, base, agent, k, phase0):
+    """Goal ``k`` of ``agent``: (goal-table index, class dwell). Vectorised over agents."""
+    _, jnp = _jax()
+    L = len(cycle)
+    cyc = jnp.asarray(cycle, jnp.int32)
+    cls = cyc[(phase0 + k) % L]
+    u = _uniform(_hash(base, agent, k, 1))
+    total = lay.class_cum[jnp.arange(lay.class_cum.shape[0]), lay.class_count - 1]
+    idx = jnp.zeros_like(agent)
+    for ci in range(lay.class_cum.shape[0]):
+        i = jnp.searchsorted(lay.class_cum[ci], u * total[ci], side="right")
+        i = jnp.clip(i, 0, lay.class_count[ci] - 1)
+        idx = jnp.where(cls == ci, lay.class_goal[ci][i], idx)
+    return idx.astype(jnp.int32), lay.class_dwell[cls]
+
+
+def _run_batch(lay_all: LayoutArrays, dist_all, lidx, seeds, *, n_agents, T, replan, cycle,
+               record_paths, priority, congestion):
+    """All runs in lock-step: run ``r`` simulates layout ``lidx[r]`` with ``seeds[r]``.
+
+    Written per run and ``jax.vmap``-ed, except that the loops (time, and PIBT's stack inside
+    a timestep) run over the whole batch with a batch-wide condition, and a finished run's
+    body is a no-op; this avoids the per-iteration selects over the carry that a vmapped
+    ``while_loop`` would do. ``dist_all`` is ``[L, G, H*W]``.
+    """
+    jax, jnp = _jax()
+    lax = jax.lax
+    vmap = jax.vmap
+    L, H, W = lay_all.traversable.shape
+    HW = H * W
+    G = dist_all.shape[1]
+    N = n_agents
+    agents = jnp.arange(N, dtype=jnp.int32)
+    n_checks = -(-T // replan)
+    nbr_all, ok_all = vmap(_neighbours)(lay_all.traversable)        # [L, HW, 5]
+    dist_flat = dist_all.reshape(-1)
+
+    def layout(li):
+        return LayoutArrays(*(x[li] for x in lay_all))
+
+    def init_one(li, seed):
+        lay = layout(li)
+        base = _hash(seed, 0x51ED)
+        trav = lay.traversable.reshape(-1)
+        # Initial cells: distinct, uniform over traversable tiles.
+        score = jnp.where(trav, _hash(base, jnp.arange(HW), 2), jnp.uint32(0xFFFFFFFF))
+        pos0 = jnp.argsort(score)[:N].astype(jnp.int32)
+        phase0 = (_hash(base, agents, 3) % jnp.uint32(len(cycle))).astype(jnp.int32)
+        goal0, dwell0 = _draw_goal(lay, cycle, base, agents, jnp.zeros(N, jnp.int32), phase0)
+        st = dict(
+            t=jnp.int32(0), pos=pos0, goal=goal0, dwell=dwell0, arrived=jnp.zeros(N, bool),
+            stayed=jnp.zeros(N, jnp.int32), k=jnp.zeros(N, jnp.int32),
+            prio=jnp.zeros(N, jnp.int32), active=jnp.zeros(N, bool),
+            congested=jnp.bool_(False), tasks=jnp.zeros(T, jnp.int32),
+            visits=jnp.zeros(HW, jnp.int32), base=base, phase0=phase0,
+            tiebreak=(_hash(base, agents, 4) & 2047).astype(jnp.int32),
+            togo=dist_flat[(li * G + goal0) * HW + pos0].astype(jnp.int32),
+            delays=jnp.int32(0), streak=jnp.int32(0), crowd=jnp.zeros(n_checks + 1, jnp.int32))
+        if record_paths:
+            st["paths"] = jnp.zeros((T + 1, N), jnp.int32).at[0].set(pos0)
+        return st
+
+    def prep_one(st, li):
+        """Candidates in preference order, and the agents decided without search."""
+        pos, goal = st["pos"], st["goal"]
+        running = ~st["congested"] & (st["t"] < T)
+        dwelling = st["arrived"] & (st["stayed"] < st["dwell"])
+        cand = nbr_all[li, pos]                                        # [N, 5]
+        ok = ok_all[li, pos] & ~(dwelling[:, None] & (jnp.arange(5) > 0))
+        d = dist_flat[((li * G + goal) * HW)[:, None] + jnp.minimum(cand, HW - 1)]
+        rnd = (_hash(st["base"], st["t"], agents[:, None] * 5 + jnp.arange(5), 5) & 7)
+        rnd = rnd.astype(jnp.int32).at[:, 0].set(0)
+        key = jnp.where(ok, d.astype(jnp.int32) * 8 + rnd, jnp.int32(2**26)) * 8 + jnp.arange(5)
+        # Preference order without a sort: each candidate's rank among the five (keys unique).
+        rank = jnp.sum(key[:, None, :] < key[:, :, None], axis=2)         # [N, 5]
+        slot = rank[:, :, None] == jnp.arange(5)                          # [N, cand, slot]
+        pref = jnp.sum(jnp.where(slot, cand[:, :, None], 0), axis=1)
+        pref_ok = jnp.any(slot & ok[:, :, None], axis=1)
+        occ = jnp.full(HW + 1, -1, jnp.int32).at[pos].set(agents)
+        # Dwelling agents stay. An agent whose best tile is empty and a candidate of no
+        # other agent takes it: PIBT would give it that tile whatever the order.
+        contenders = jnp.zeros(HW + 1, jnp.int32).at[jnp.where(ok, cand, HW)].add(1)
+        best = pref[:, 0]
+        free = (~dwelling & pref_ok[:, 0] & (best != pos) & (occ[best] < 0)
+                & (contenders[best] == 1))
+        pre = (dwelling | free) & running
+        target = jnp.where(pre, jnp.where(dwelling, pos, best), -1)
+        resv = jnp.zeros(HW + 1, bool).at[jnp.where(pre, target, HW)].set(True)
+        # Roots: undecided agents by priority (time since the last finished goal, then a
+        # fixed per-agent random 11-bit number), highest first.
+        if priority == "age":
+            tb, pr = st["tiebreak"], st["prio"]
+        else:
+            tb = (_hash(st["base"], st["t"], agents, 6) & 2047).astype(jnp.int32)
+            pr = 0 * st["prio"]
+        okey = (pre.astype(jnp.int32) * 2**30 + (2**18 - jnp.minimum(pr, 2**18 - 1)) * 2**11
+                + tb)
+        order = jnp.argsort(okey).astype(jnp.int32)
+        n_roots = jnp.where(running, jnp.sum(~pre), 0).astype(jnp.int32)
+        aux = dict(pref=pref, pref_ok=pref_ok, occ=occ, order=order, n_roots=n_roots, pos=pos)
+        carry = (jnp.int32(0), jnp.int32(0), jnp.zeros(N, jnp.int32), jnp.zeros(N, jnp.int32),
+                 target.astype(jnp.int32), resv)
+        return carry, aux
+
+    def pibt_one(c, x):
+        """One PIBT action: start the next root, or try the top agent's next candidate.
+
+        An agent claims its best free candidate; if that tile holds an undecided agent, that
+        agent is pushed (it must move and may not take its pusher's tile); a pushed agent
+        that finds no tile stays, and its pusher tries its next candidate.
+        """
+        j, sp, sa, sk, target, resv = c
+        pos, occ, order = x["pos"], x["occ"], x["order"]
+        empty = sp == 0
+        root = order[jnp.minimum(j, N - 1)]
+        start = empty & (j < x["n_roots"]) & (target[root] < 0)
+        sa = sa.at[0].set(jnp.where(start, root, sa[0]))
+        sk = sk.at[0].set(jnp.where(start, 0, sk[0]))
+        sp = jnp.where(start, 1, sp)
+        j = jnp.where(empty & (j < x["n_roots"]), j + 1, j)
+        active = sp > 0
+        top = jnp.maximum(sp - 1, 0)
+        a = sa[top]
+        k = sk[top]
+        pusher = jnp.where(top > 0, sa[jnp.maximum(top - 1, 0)], -1)
+        kk = jnp.minimum(k, 4)
+        v = x["pref"][a, kk]
+        o = occ[v]
+        oc = jnp.maximum(o, 0)
+        other = (o >= 0) & (o != a)
+        exhausted = k >= 5
+        blocked = (~x["pref_ok"][a, kk] | resv[v]
+                   | ((pusher >= 0) & (v == pos[jnp.maximum(pusher, 0)]))
+                   | (other & (target[oc] == pos[a])))
+        try_ok = active & ~exhausted & ~blocked
+        push = try_ok & other & (target[oc] < 0)
+        success = try_ok & ~push
+        fail = active & exhausted
+        skip = active & ~exhausted & blocked
+        cell = jnp.where(fail, pos[a], v)
+        write = try_ok | fail
+        target = target.at[a].set(jnp.where(write, cell, target[a]))
+        resv = resv.at[cell].set(resv[cell] | write)
+        nxt = jnp.minimum(sp, N - 1)
+        sa = sa.at[nxt].set(jnp.where(push, o, sa[nxt]))
+        sk = sk.at[nxt].set(jnp.where(push, 0, sk[nxt]))
+        sk = sk.at[top].add(skip.astype(jnp.int32))
+        par = jnp.maximum(top - 1, 0)
+        sk = sk.at[par].add((fail & (top > 0)).astype(jnp.int32))
+        sp = jnp.where(push, sp + 1, jnp.where(success, 0, jnp.where(fail, sp - 1, sp)))
+        return j, sp, sa, sk, target, resv
+
+    def finish_one(st, target, li):
+        """Execute the planned step; goal bookkeeping; congestion check every replan steps."""
+        lay = layout(li)
+        running = ~st["congested"] & (st["t"] < T)
+        t = st["t"] + 1
+        pos = st["pos"]
+        nxt = jnp.where(running, target, pos)
+        moved = nxt != pos
+        at = nxt == lay.goal_cells[st["goal"]]
+        gbase = (li * G + st["goal"]) * HW
+        dwelling = st["arrived"] & (st["stayed"] < st["dwell"])
+        delayed = running & ~dwelling & (dist_flat[gbase + nxt] >= dist_flat[gbase + pos])
+        stayed = jnp.where(at & st["arrived"], st["stayed"] + 1, 0)
+        done = at & (stayed >= st["dwell"])
+        k = st["k"] + done
+        ng, nd = _draw_goal(lay, cycle, st["base"], agents, k, st["phase0"])
+        goal = jnp.where(done, ng, st["goal"])
+        dwell = jnp.where(done, nd, st["dwell"])
+        again = done & (lay.goal_cells[goal] == nxt)  # next goal on this cell: arrived now
+        arrived = jnp.where(done, again, at)
+        stayed = jnp.where(done, 0, stayed)
+        check = (t % replan == 0) | (t == T)
+        togo = dist_flat[(li * G + goal) * HW + nxt].astype(jnp.int32)
+        if congestion == "moved":  # RHCR's rule: moved, or dwelt at a station
+            active = (st["active"] | moved | (done & (st["dwell"] > 0))
+                      | (arrived & (dwell > 0)))
+        else:  # "progress": finished a goal, dwelt, or ended the window closer to its goal
+            active = (st["active"] | done | (arrived & (dwell > 0))
+                      | (check & (togo < st["togo"])))
+        congested = check & (2 * (N - jnp.sum(active)) > N)
+        # Crowding: the most agents in any k x k block (k = DENSITY_K), at every check.
+        grid = jnp.zeros(HW, jnp.int32).at[nxt].set(1).reshape(H, W)
+        cs = jnp.pad(jnp.cumsum(jnp.cumsum(grid, 0), 1), ((1, 0), (1, 0)))
+        kk = min(DENSITY_K, H, W)
+        block = cs[kk:, kk:] - cs[:-kk, kk:] - cs[kk:, :-kk] + cs[:-kk, :-kk]
+        crowd = jnp.max(block)
+        streak = jnp.where(check, jnp.where(crowd >= DENSITY_MAX, st["streak"] + 1, 0),
+                           st["streak"])
+        if congestion == "crowding":  # RHCR's rule, or a block crowded for DENSITY_CHECKS checks
+            congested = congested | (streak >= DENSITY_CHECKS)
+        new = dict(st, t=t, pos=nxt, goal=goal, dwell=dwell, arrived=arrived, stayed=stayed,
+                   k=k, prio=jnp.where(done, 0, st["prio"] + 1),
+                   active=jnp.where(check, False, active), congested=congested,
+                   togo=jnp.where(check, togo, st["togo"]), streak=streak)
+        new = {key: (jnp.where(running, val, st[key]) if key in _SMALL else val)
+               for key, val in new.items()}
+        ti = jnp.where(running, t, st["t"])
+        new["tasks"] = st["tasks"].at[ti - 1].add(jnp.where(running, jnp.sum(done), 0))
+        new["visits"] = st["visits"].at[nxt].add(running.astype(jnp.int32))
+        new["delays"] = st["delays"] + jnp.sum(delayed)
+        ci = jnp.where(running & check, (t - 1) // replan, n_checks)
+        new["crowd"] = st["crowd"].at[ci].set(crowd)
+        if record_paths:
+            new["paths"] = st["paths"].at[ti].set(nxt)
+        return new
+
+    def step(st):
+        carry, aux = vmap(prep_one)(st, lidx)
+        carry = lax.while_loop(lambda c: jnp.any((c[0] < aux["n_roots"]) | (c[1] > 0)),
+                               lambda c: vmap(pibt_one)(c, aux), carry)
+        return vmap(finish_one)(st, carry[4], lidx)
+
+    st = vmap(init_one)(lidx, seeds)
+    st = lax.while_loop(lambda s: jnp.any(~s["congested"] & (s["t"] < T)), step, st)
+    res = dict(stop_time=st["t"], congested=st["congested"], tasks=st["tasks"],
+               visits=st["visits"].reshape(-1, H, W), k=st["k"], base=st["base"],
+               delays=st["delays"], crowd=st["crowd"][:, :n_checks])
+    if record_paths:
+        res["paths"] = st["paths"]
+    return res
+
+
+_SMALL = ("t", "pos", "goal", "dwell", "arrived", "stayed", "k", "prio", "active", "congested",
+          "togo", "streak")
+_COMPILED: dict = {}
+_EXECUTABLES: dict = {}
+
+
+def _batched(n_agents, T, replan, cycle, record_paths, priority, congestion):
+    """Jitted: (stacked layouts [L, ...], distances [L, G, HW], layout index [R], seeds [R])
+    -> results with leading axis R (one per run)."""
+    jax, _ = _jax()
+    key = (n_agents, T, replan, cycle, record_paths, priority, congestion)
+    if key not in _COMPILED:
+        def run(lay, dist, lidx, seeds):
+            return _run_batch(lay, dist, lidx, seeds, n_agents=n_agents, T=T, replan=replan,
+                              cycle=cycle, record_paths=record_paths, priority=priority,
+                              congestion=congestion)
+
+        _COMPILED[key] = jax.jit(run)
+    return _COMPILED[key]
+
+
+def _compiled(fn, *args):
+    """Ahead-of-time compiled ``fn`` for these argument shapes (cached)."""
+    key = (fn, tuple((a.shape, str(a.dtype)) for a in _leaves(args)))
+    if key not in _EXECUTABLES:
+        _EXECUTABLES[key] = fn.lower(*args).compile()
+    return _EXECUTABLES[key]
+
+
+def _leaves(tree):
+    jax, _ = _jax()
+    return jax.tree_util.tree_leaves(tree)
+
+
+def _distance_fn():
+    jax, _ = _jax()
+    if "dist" not in _COMPILED:
+        _COMPILED["dist"] = jax.jit(jax.vmap(distance_table))
+    return _COMPILED["dist"]
+
+
+def _default_threads() -> int:
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover
+        return os.cpu_count() or 1
+
+
+def goal_log(lay: LayoutArrays, cycle, base, k_done: np.ndarray) -> list[np.ndarray]:
+    """Rebuild each agent's goals (finished ones, then the current one) as (row, col, dwell)."""
+    jax, jnp = _jax()
+    N = k_done.shape[0]
+    W = lay.traversable.shape[1]
+    kmax = int(k_done.max()) + 1
+    a = jnp.repeat(jnp.arange(N, dtype=jnp.int32), kmax)
+    k = jnp.tile(jnp.arange(kmax, dtype=jnp.int32), N)
+    phase0 = _hash(base, jnp.arange(N, dtype=jnp.int32), 3) % jnp.uint32(len(cycle))
+    phase0 = phase0.astype(jnp.int32)
+    lay_j = LayoutArrays(*(jnp.asarray(x) for x in lay))
+    gi, dw = _draw_goal(lay_j, cycle, base, a, k, phase0[a])
+    cells = np.asarray(lay.goal_cells)[np.asarray(gi)].reshape(N, kmax)
+    dw = np.asarray(dw).reshape(N, kmax)
+    return [np.stack([cells[i, : k_done[i] + 1] // W, cells[i, : k_done[i] + 1] % W,
+                      dw[i, : k_done[i] + 1]], axis=1).astype(np.int64) for i in range(N)]
+
+
+# ----------------------------------------------------------------------------- public API
+def _check(n_agents: int, T: int, replan: int, congestion: str = CONGESTION,
+           priority: str = PRIORITY) -> None:
+    if priority not in ("random", "age"):
+        raise NcaQdError(f"priority must be 'random' or 'age', got {priority!r}")
+    if congestion not in ("moved", "progress", "crowding"):
+        raise NcaQdError(f"congestion rule must be 'moved', 'progress' or 'crowding', "
+                         f"got {congestion!r}")
+    if isinstance(T, bool) or not isinstance(T, (int, np.integer)) or T <= 0:
+        raise NcaQdError(f"horizon T must be a positive integer, got {T!r}")
+    if isinstance(n_agents, bool) or not isinstance(n_agents, (int, np.integer)) or n_agents <= 0:
+        raise NcaQdError(f"need at least one agent, got {n_agents!r}")
+    if not isinstance(replan, (int, np.integer)) or replan < 1:
+        raise NcaQdError(f"replan (congestion check period h) must be >= 1, got {replan!r}")
+
+
+def simulate_scenarios(scens: Sequence[Scenario], n_agents: int, T: int, seeds: Sequence[int],
+                       replan: int = 5, record_paths: bool = False,
+                       priority: str = PRIORITY,
+                       congestion: str = CONGESTION,
+                       threads: int | None = None) -> list[list[ScreenResult]]:
+    """Simulate every validated scenario (one kind, one shape) with every seed, as one
+    vmapped batch (split over ``threads`` CPU threads, default: all available CPUs).
+    Returns ``results[layout][seed]``."""
+    _check(n_agents, T, replan, congestion, priority)
+    seeds = [int(s) for s in seeds]
+    if not seeds:
+        return [[] for _ in scens]
+    for s in scens:
+        if n_agents > s.n_traversable:
+            raise NcaQdError(f"{n_agents} agents but only {s.n_traversable} traversable tiles")
+        if any(not np.isfinite(c.weights).all() for c in s.classes):
+            raise NcaQdError("goal weights must be finite")
+    lay = prepare(scens)
+    cycle = tuple(int(c) for c in scens[0].cycle)
+    fn = _batched(int(n_agents), int(T), int(replan), cycle, bool(record_paths),
+                  priority, congestion)
+    jax, jnp = _jax()
+    lay_j = LayoutArrays(*(jnp.asarray(x) for x in lay))
+    S = len(seeds)
+    runs = len(scens) * S
+    lidx = np.repeat(np.arange(len(scens), dtype=np.int32), S)
+    seed_r = np.tile(np.array(seeds, dtype=np.int64) % 2**32, len(scens)).astype(np.uint32)
+    # Runs are split into equal chunks (the last one padded with repeats), one per thread;
+    # XLA releases the GIL, so chunks run in parallel on CPU. Results do not depend on it.
+    threads = max(1, min(int(threads or _default_threads()), runs))
+    size = -(-runs // threads)
+    pad = size * threads - runs
+    lidx = np.concatenate([lidx, np.repeat(lidx[-1:], pad)])
+    seed_r = np.concatenate([seed_r, np.repeat(seed_r[-1:], pad)])
+    dist_exe = _compiled(_distance_fn(), lay_j.traversable, lay_j.goal_cells)
+    chunks = [(jnp.asarray(lidx[i * size:(i + 1) * size]),
+               jnp.asarray(seed_r[i * size:(i + 1) * size])) for i in range(threads)]
+    L, H, W = lay.traversable.shape
+    dist_spec = jax.ShapeDtypeStruct((L, lay.goal_cells.shape[1], H * W), jnp.int16)
+    exe = _compiled(fn, lay_j, dist_spec, *chunks[0])  # compiled before the clock starts
+    cpu0, wall0 = time.process_time(), time.perf_counter()
+    dist = dist_exe(lay_j.traversable, lay_j.goal_cells)
+    if threads == 1:
+        parts = [jax.device_get(exe(lay_j, dist, *chunks[0]))]
+    else:
+        with ThreadPoolExecutor(max_workers=threads) as pool:
+            parts = list(pool.map(lambda c: jax.device_get(exe(lay_j, dist, *c)), chunks))
+    out = {k: np.concatenate([p[k] for p in parts])[:runs] for k in parts[0]}
+    cpu = (time.process_time() - cpu0) / runs
+    wall = (time.perf_counter() - wall0) / runs
+    results = []
+    S = len(seeds)
+    for li, scen in enumerate(scens):
+        row = []
+        one_lay = LayoutArrays(*(x[li] for x in lay))
+        for si, seed in enumerate(seeds):
+            stop = int(out["stop_time"][li * S + si])
+            tasks = np.asarray(out["tasks"][li * S + si]).astype(np.int64)
+            finished = int(tasks.sum())
+            congested = bool(out["congested"][li * S + si])
+            paths = goals = None
+            if record_paths:
+                W = scen.shape[1]
+                flat = np.asarray(out["paths"][li * S + si][: stop + 1])
+                paths = np.stack([flat // W, flat % W], axis=-1).astype(np.int32)
+                goals = goal_log(one_lay, cycle, out["base"][li * S + si],
+                                 np.asarray(out["k"][li * S + si]))
+            row.append(ScreenResult(
+                scenario=scen.name, seed=seed, n_agents=int(n_agents), T=int(T),
+                throughput=finished / T, success=(not congested) and stop == T,
+                congested=congested, stop_time=stop, finished_tasks=finished,
+                tasks_per_step=tasks,
+                tile_visits=np.asarray(out["visits"][li * S + si]).astype(np.int64),
+                cpu_seconds=cpu, wall_seconds=wall, goals=goals, paths=paths,
+                delay_rate=float(out["delays"][li * S + si]) / max(1, stop * n_agents),
+                crowding=np.asarray(out["crowd"][li * S + si])))
+        results.append(row)
+    return results
+
+
+def simulate_batch(layouts: Sequence[Sequence[str]], scenario: str, n_agents: int, T: int,
+                   seeds: Sequence[int], replan: int = 5,
+                   record_paths: bool = False,
+                   priority: str = PRIORITY,
+                   congestion: str = CONGESTION,
+                   threads: int | None = None) -> list[list[ScreenResult]]:
+    """Validate layouts (rows) and simulate all of them with all seeds in one vmapped batch.
+
+    All layouts must have one shape. Bad input (unknown scenario or tiles, unreachable goals,
+    too many agents, bad T) raises :class:`NcaQdError` before anything is compiled.
+    """
+    _check(n_agents, T, replan)
+    scens = [build_scenario(list(r), scenario, n_agents=n_agents, source=f"layout {i}")
+             for i, r in enumerate(layouts)]
+    return simulate_scenarios(scens, n_agents, T, seeds, replan, record_paths, priority,
+                              congestion, threads)
+
+
+def simulate(rows: Sequence[str], scenario: str, n_agents: int, T: int, seed: int,
+             replan: int = 5, record_paths: bool = False,
+             priority: str = PRIORITY, congestion: str = CONGESTION) -> ScreenResult:
+    """One screening run (a batch of one)."""
+    return simulate_batch([rows], scenario, n_agents, T, [seed], replan, record_paths,
+                          priority, congestion)[0][0]
