@@ -14,29 +14,8 @@ from nca_qd.errors import NcaQdError
 from nca_qd.sim.checker import check_run
 from nca_qd.sim.rhcr import simulate, simulate_many
 from nca_qd.sim.scenario import build_scenario
+from sim_layouts import MANUFACTURING, WAREHOUSE
 
-WAREHOUSE = [
-    "............",
-    "w.eeee.eeeew",
-    "..@@@@.@@@@.",
-    "..eeee.eeee.",
-    "w..........w",
-    "..eeee.eeee.",
-    "..@@@@.@@@@.",
-    "w.eeee.eeeew",
-    "............",
-]
-MANUFACTURING = [
-    "............",
-    "..ee....ee..",
-    ".e00e..e11e.",
-    "..ee....ee..",
-    "............",
-    "..ee....ee..",
-    ".e22e..e22e.",
-    "..ee....ee..",
-    "............",
-]
 
 
 def run_checked(rows, scenario, n_agents, T, seed=0, **kw):

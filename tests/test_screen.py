@@ -15,30 +15,9 @@ from nca_qd.errors import NcaQdError
 from nca_qd.sim import screen
 from nca_qd.sim.checker import check_run, recount_tasks
 from nca_qd.sim.scenario import build_scenario
+from sim_layouts import MANUFACTURING, WAREHOUSE
 from nca_qd.sim.screen import simulate, simulate_batch
 
-WAREHOUSE = [
-    "............",
-    "w.eeee.eeeew",
-    "..@@@@.@@@@.",
-    "..eeee.eeee.",
-    "w..........w",
-    "..eeee.eeee.",
-    "..@@@@.@@@@.",
-    "w.eeee.eeeew",
-    "............",
-]
-MANUFACTURING = [
-    "............",
-    "..ee....ee..",
-    ".e00e..e11e.",
-    "..ee....ee..",
-    "............",
-    "..ee....ee..",
-    ".e22e..e22e.",
-    "..ee....ee..",
-    "............",
-]
 # Shared settings so that most tests reuse one compiled program.
 N, T = 12, 40
 

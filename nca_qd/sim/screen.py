@@ -53,6 +53,7 @@ from typing import NamedTuple, Sequence
 import numpy as np
 
 from nca_qd.errors import NcaQdError
+from nca_qd.sim.result import RunResult
 from nca_qd.sim.scenario import Scenario, build_scenario
 
 __all__ = ["ScreenResult", "LayoutArrays", "simulate", "simulate_batch", "simulate_scenarios",
@@ -74,41 +75,21 @@ _PAD = 64      # goal-table and class sizes are padded to multiples of this (few
 
 
 @dataclass
-class ScreenResult:
-    """Outcome of one screening run; duck-types :class:`nca_qd.sim.rhcr.SimResult` for
-    :func:`nca_qd.sim.checker.check_run` and ``experiments.simulate``.
+class ScreenResult(RunResult):
+    """Outcome of one screening run: :class:`~nca_qd.sim.result.RunResult` plus two diagnostics.
 
     ``cpu_seconds`` / ``wall_seconds`` are the batch's process CPU / wall time divided by the
     number of runs in the batch (compilation excluded when it was already compiled).
-    ``goals[a]`` is ``[k, 3]`` (row, col, dwell): the goals agent ``a`` finished, then its
-    current one. ``paths`` (when recorded) is ``[stop_time + 1, n_agents, 2]``.
+    ``goals[a]`` holds the goals agent ``a`` finished, then its current one.
     """
 
-    scenario: str
-    seed: int
-    n_agents: int
-    T: int
-    throughput: float
-    success: bool
-    congested: bool
-    stop_time: int
-    finished_tasks: int
-    tasks_per_step: np.ndarray
-    tile_visits: np.ndarray
-    cpu_seconds: float
-    wall_seconds: float
-    goals: list[np.ndarray] = field(repr=False)
-    paths: np.ndarray | None = field(default=None, repr=False)
-    timed_out: bool = False
     # share of agent-steps (not dwelling) that did not bring the agent closer to its goal
     delay_rate: float = 0.0
     # the most agents in one DENSITY_K x DENSITY_K block, at each congestion check
     crowding: np.ndarray | None = field(default=None, repr=False)
 
     def summary(self) -> dict:
-        return {"seed": self.seed, "throughput": self.throughput, "success": self.success,
-                "stop_time": self.stop_time, "cpu_seconds": round(self.cpu_seconds, 3),
-                "timed_out": False, "congested": self.congested}
+        return {**super().summary(), "congested": self.congested}
 
 
 class LayoutArrays(NamedTuple):

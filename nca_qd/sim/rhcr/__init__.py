@@ -14,12 +14,13 @@ from __future__ import annotations
 
 import os
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
 from nca_qd.errors import NcaQdError
+from nca_qd.sim.result import RunResult
 from nca_qd.sim.scenario import Scenario, build_scenario
 
 try:
@@ -32,42 +33,17 @@ __all__ = ["SimResult", "simulate", "simulate_many", "simulate_scenario"]
 
 
 @dataclass
-class SimResult:
-    """Outcome of one simulation.
+class SimResult(RunResult):
+    """Outcome of one exact RHCR run (fields of :class:`~nca_qd.sim.result.RunResult` plus the
+    planner's counters)."""
 
-    ``throughput`` is finished tasks / T with T the full horizon, even when the run stopped
-    early (congestion or time limit). ``tasks_per_step[t-1]`` counts goals completed at time
-    t; ``tile_visits[r, c]`` counts agent-timesteps spent on the tile over times
-    1..stop_time. ``paths`` (when recorded) is ``[stop_time + 1, n_agents, 2]`` (row, col);
-    ``goals[a]`` is ``[k, 3]`` (row, col, dwell): every goal agent ``a`` was given, in order.
-    """
-
-    scenario: str
-    seed: int
-    n_agents: int
-    T: int
-    throughput: float
-    success: bool
-    congested: bool
-    timed_out: bool
-    stop_time: int
-    finished_tasks: int
-    tasks_per_step: np.ndarray
-    tile_visits: np.ndarray
-    cpu_seconds: float
-    wall_seconds: float
-    replans: int
-    pbs_failures: int
-    pbs_nodes: int
-    low_level_expansions: int
-    goals: list[np.ndarray] = field(repr=False)
-    paths: np.ndarray | None = field(default=None, repr=False)
+    replans: int = 0
+    pbs_failures: int = 0
+    pbs_nodes: int = 0
+    low_level_expansions: int = 0
 
     def summary(self) -> dict:
-        """The per-run figures printed by ``experiments.simulate`` (JSON-friendly)."""
-        return {"seed": self.seed, "throughput": self.throughput, "success": self.success,
-                "stop_time": self.stop_time, "cpu_seconds": round(self.cpu_seconds, 3),
-                "timed_out": self.timed_out, "pbs_failures": self.pbs_failures}
+        return {**super().summary(), "pbs_failures": self.pbs_failures}
 
 
 def simulate(rows: Sequence[str], scenario: str, n_agents: int, T: int, seed: int,
