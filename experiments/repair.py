@@ -23,7 +23,7 @@ from nca_qd.repair.validator import check
 log = logging.getLogger("nca_qd.repair")
 
 # Repair options: the command line's value, else the domain config's repair block.
-OPTIONS = ("method", "time_limit_s", "improve_time_s", "window", "window_time_s",
+OPTIONS = ("method", "time_limit_s", "improve_time_s", "improve_windows", "window", "window_time_s",
            "max_window_cells", "max_violation_fraction", "threads", "seed")
 
 
@@ -34,7 +34,8 @@ def main(argv: list[str]) -> int:
         raise NcaQdError(f"domain {domain!r} has no repair (repairable: {', '.join(DOMAIN_NAMES)})")
     if not cfg.layout or not cfg.out:
         raise NcaQdError("give layout=<in.json> and out=<out.json>")
-    opts = {key: (cfg[key] if cfg[key] is not None else cfg.domain.repair[key]) for key in OPTIONS}
+    opts = {key: (cfg[key] if cfg[key] is not None else cfg.domain.repair.get(key))
+            for key in OPTIONS}
     tiles = tiles_of(domain)
     path = Path(cfg.layout)
     mapfile = load_map(path, tiles)

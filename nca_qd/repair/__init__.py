@@ -102,6 +102,7 @@ def repair(
     method: str = "neighbourhood",
     time_limit_s: float = 60.0,
     improve_time_s: float | str | None = "auto",
+    improve_windows: int | None = None,
     window: int = 8,
     window_time_s: float = 2.0,
     max_window_cells: int = 1200,
@@ -126,7 +127,8 @@ def repair(
         status, best = "infeasible", None
     elif method == "neighbourhood":
         out = repair_neighbourhood(layout, rules, greedy, time_limit=time_limit_s,
-                                   improve_time=improve_time_s, window=window,
+                                   improve_time=improve_time_s,
+                                   improve_windows=improve_windows, window=window,
                                    window_time=window_time_s, max_window_cells=max_window_cells,
                                    max_violation_fraction=max_violation_fraction, threads=threads, seed=seed)
         status, best = out.status, out.layout

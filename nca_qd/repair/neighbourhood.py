@@ -64,6 +64,10 @@ def _square(shape: tuple[int, int], r: int, c: int, side: int) -> np.ndarray:
     return box
 
 
+# Branch-and-bound nodes per improvement window under a window budget (``improve_windows``).
+WINDOW_NODES = 200
+
+
 def repair_neighbourhood(
     layout_in: np.ndarray,
     rules: Rules,
@@ -71,6 +75,7 @@ def repair_neighbourhood(
     *,
     time_limit: float = 60.0,
     improve_time: float = 30.0,
+    improve_windows: int | None = None,
     window: int = 8,
     window_time: float = 2.0,
     max_window_cells: int = 1200,
@@ -78,7 +83,14 @@ def repair_neighbourhood(
     threads: int = 1,
     seed: int = 0,
 ) -> SearchOutcome:
-    """Valid layout near ``layout_in`` by windows + greedy + window improvement (module docstring)."""
+    """Valid layout near ``layout_in`` by windows + greedy + window improvement (module docstring).
+
+    The improvement phase stops after ``improve_time`` seconds, or — when ``improve_windows`` is
+    given — after that many window solves of at most ``WINDOW_NODES`` branch-and-bound nodes
+    each, with ``time_limit`` only as a safety cap. A time budget that binds makes the result
+    depend on the machine's speed; a window budget makes the repair deterministic for a seed
+    whatever the load.
+    """
     t0 = time.perf_counter()
     deadline = t0 + time_limit
     stages: dict[str, float] = {}
@@ -126,20 +138,24 @@ def repair_neighbourhood(
 
     # 3. Window improvement around the cells that differ.
     t2 = time.perf_counter()
-    stop = min(deadline, t2 + improve_time)
+    stop = deadline if improve_windows is not None else min(deadline, t2 + improve_time)
+    max_windows = improve_windows if improve_windows is not None else np.inf
     rng = np.random.default_rng(seed)
     done = np.zeros(layout_in.shape, dtype=bool)
     n_windows = 0
-    while cost > bound and time.perf_counter() < stop:
+    while cost > bound and n_windows < max_windows and time.perf_counter() < stop:
         todo = np.argwhere((best != layout_in) & free & ~done)
         if len(todo) == 0:
             break
         r, c = todo[rng.integers(len(todo))]
         box = _square(layout_in.shape, int(r), int(c), window) & free
         before = weighted_distance(best[box], layout_in[box], weights[box])
-        budget = max(0.05, min(window_time / 4, stop - time.perf_counter()))
+        if improve_windows is not None:  # work limits: the same answer whatever the load
+            budget, nodes = max(0.05, stop - time.perf_counter()), WINDOW_NODES
+        else:
+            budget, nodes = max(0.05, min(window_time / 4, stop - time.perf_counter())), None
         res = solve_window(best, layout_in, box, rules, time_limit=budget, threads=threads,
-                           seed=seed, warm_start=True)
+                           seed=seed, warm_start=True, max_nodes=nodes)
         n_windows += 1
         if res.layout is not None and res.objective is not None and res.objective < before - 0.5 \
                 and is_valid(res.layout, rules):
