@@ -28,11 +28,11 @@ def _timed(fn, repeats: int) -> list[float]:
 
 
 def bench_sphere(iters: int) -> None:
-    from nca_qd.qd.benchmarks import normalised_qd_score, sphere_objective, sphere_spec
+    from nca_qd.qd.benchmarks import normalised_qd_score, sphere_batch_objective, sphere_spec
     from nca_qd.qd.emitters import ESEmitters
     from nca_qd.qd.loop import QDLoop
 
-    loop = QDLoop(ESEmitters(15, 36, 100, 0.5), jax.jit(lambda s, k: sphere_objective(s)), 100,
+    loop = QDLoop(ESEmitters(15, 36, 100, 0.5), sphere_batch_objective(), 100,
                   sphere_spec())
     state = loop.init(jax.random.PRNGKey(0))
     state, m, _ = loop.step(state)  # compile

@@ -9,7 +9,8 @@ A run directory holds
   atomically every ``qd.checkpoint_every`` iterations, at the end and on Ctrl-C;
 * ``archive_result.npz`` / ``archive_opt.npz``: plain arrays of both archives;
 * pictures: ``archive_result.png``, ``archive_opt.png``, ``curves.png``, ``best_train.png`` and
-  ``best_eval.png`` (the same generators at the training and the evaluation size).
+  ``best_eval.png`` (the same generators at the training and the evaluation size) and, for
+  domains with repair, ``best_train_repaired.png`` / ``best_eval_repaired.png``.
 
 Everything is deterministic given ``seed``: a resumed run replays from its last checkpoint and
 ends where an uninterrupted run ends.
@@ -83,8 +84,10 @@ class Experiment:
         self.generator = make_generator(self.domain)
         emitter = make_emitter(cfg.algo, cfg.qd, self.generator.n_params)
         spec = archive_spec(cfg.algo.name, cfg.domain, cfg.qd)
-        self.loop = QDLoop(emitter, make_objective(self.domain, self.generator),
-                           self.generator.n_params, spec)
+        self.objective = make_objective(self.domain, self.generator, cfg)
+        self.loop = QDLoop(emitter, self.objective, self.generator.n_params, spec)
+        # The scorer's own per-iteration figures (exact runs, screen error, stage timings).
+        self.metric_columns = METRIC_COLUMNS + list(self.objective.metric_names)
         self.n_iterations = math.ceil(cfg.qd.n_evals / self.loop.batch_size)
 
     # --- state on disk -------------------------------------------------------------------
@@ -122,11 +125,14 @@ class Experiment:
         rows = self._metrics_rows(int(state.iteration))
         metrics_path = self.run_dir / METRICS_FILE
         with metrics_path.open("w", newline="") as fh:  # rewrite: drops rows past the checkpoint
-            writer = csv.DictWriter(fh, fieldnames=METRIC_COLUMNS)
+            writer = csv.DictWriter(fh, fieldnames=self.metric_columns, extrasaction="ignore")
             writer.writeheader()
             writer.writerows(rows)
-        state = self._iterate(state, wall)
-        self.write_outputs(state)
+        try:
+            state = self._iterate(state, wall)
+            self.write_outputs(state)
+        finally:
+            self.objective.close()
         return state
 
     def _iterate(self, state: QDState, wall: float) -> QDState:
@@ -139,7 +145,7 @@ class Experiment:
         last_saved = start_iter
         try:
             with (self.run_dir / METRICS_FILE).open("a", newline="") as fh:
-                writer = csv.DictWriter(fh, fieldnames=METRIC_COLUMNS, extrasaction="ignore")
+                writer = csv.DictWriter(fh, fieldnames=self.metric_columns, extrasaction="ignore")
                 while int(state.iteration) < self.n_iterations:
                     t0 = time.perf_counter()
                     new_state, metrics, _ = self.loop.step(state)
@@ -202,6 +208,30 @@ class Experiment:
             h, w = layouts[0].shape
             viz.render_layouts(self.run_dir / f"best_{which}.png", layouts, d.layout_tiles,
                                d.palette, [f"cell {c} ({h}x{w})" for c in cells])
+            if self.cfg.domain.get("repair") is not None and self.cfg.output.get("repaired", True):
+                self._render_repaired(which, layouts, cells)
+
+    def _render_repaired(self, which: str, layouts: list[np.ndarray], cells) -> None:
+        """``best_<which>_repaired.png``: each elite's layout repaired (domains with repair)."""
+        from nca_qd import viz
+        from nca_qd.scoring.backend import make_backend, map_jobs
+        from nca_qd.scoring.tasks import repair_options, repair_task
+
+        d = self.domain
+        opts = repair_options(self.cfg.domain, which)
+        backend = make_backend(self.cfg.get("eval"))
+        try:
+            out = map_jobs(backend, repair_task, [(d.name, lay, opts) for lay in layouts])
+        finally:
+            backend.close()
+        shown, titles = [], []
+        for lay, res, c in zip(layouts, out, cells):
+            ok = getattr(res, "layout", None) is not None
+            shown.append(res.layout if ok else lay)
+            titles.append(f"cell {c} repaired, Hamming {res.hamming}" if ok
+                          else f"cell {c}: repair failed")
+        viz.render_layouts(self.run_dir / f"best_{which}_repaired.png", shown, d.layout_tiles,
+                           d.palette, titles)
 
 
 def select_elites(objective: np.ndarray, n: int) -> np.ndarray:

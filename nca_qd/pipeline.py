@@ -1,12 +1,14 @@
 """Generate -> score: the batched objective the QD loop searches over.
 
-``make_objective(domain, generator)`` returns ``f(solutions [b, d], key) -> EvalBatch``: the
-whole batch of NCA generators produces its environments in one vmapped call, then the domain
-scores them (for the maze, one more jitted call; for domains with repair and simulation, the
+``make_objective(domain, generator, run_cfg)`` returns ``f(solutions [b, d], key, context)
+-> EvalBatch``: the whole batch of NCA generators produces its environments in one vmapped
+call, then the domain scores them (for the maze, one more jitted call; for domains with repair and simulation, the
 domain's host-side pipeline).
 """
 
 from __future__ import annotations
+
+import time
 
 import jax
 import numpy as np
@@ -27,13 +29,35 @@ def generate(domain: Domain, generator: NCAGenerator, solutions, which: str = "t
     return np.asarray(generator.generate(solutions, domain.seed(shape), n_iters))
 
 
-def make_objective(domain: Domain, generator: NCAGenerator):
-    seed = domain.seed(domain.gen_shape("train"))
-    n_iters = domain.nca_iters("train")
-    evaluator = domain.make_evaluator()
+class Objective:
+    """``objective(solutions [b, d], key, context=None) -> EvalBatch``: generate, then score.
 
-    def objective(solutions: jax.Array, key: jax.Array) -> EvalBatch:
-        regions = generator.generate(solutions, seed, n_iters)
-        return evaluator(regions, key)
+    Carries the domain scorer's ``metric_names`` and adds ``generate_seconds`` to its metrics
+    (host-side scorers); ``close()`` releases the scorer's worker pools.
+    """
 
-    return objective
+    def __init__(self, domain: Domain, generator: NCAGenerator, run_cfg=None):
+        self.seed = domain.seed(domain.gen_shape("train"))
+        self.n_iters = domain.nca_iters("train")
+        self.generator = generator
+        self.evaluator = domain.make_evaluator(run_cfg)
+        self.metric_names = tuple(getattr(self.evaluator, "metric_names", ()))
+
+    def __call__(self, solutions: jax.Array, key: jax.Array, context=None) -> EvalBatch:
+        t0 = time.perf_counter()
+        regions = self.generator.generate(solutions, self.seed, self.n_iters)
+        if not self.metric_names:  # a jitted scorer: keep generation and scoring fused
+            return self.evaluator(regions, key, context)
+        regions = np.asarray(regions)  # waits for the device: the generation time is real
+        t_gen = time.perf_counter() - t0
+        ev = self.evaluator(regions, key, context)
+        ev.extras.setdefault("metrics", {})["generate_seconds"] = t_gen
+        return ev
+
+    def close(self) -> None:
+        if hasattr(self.evaluator, "close"):
+            self.evaluator.close()
+
+
+def make_objective(domain: Domain, generator: NCAGenerator, run_cfg=None) -> Objective:
+    return Objective(domain, generator, run_cfg)

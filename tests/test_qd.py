@@ -8,11 +8,11 @@ import jax
 import numpy as np
 import pytest
 
-from nca_qd.qd.benchmarks import sphere_objective, sphere_spec
+from nca_qd.qd.benchmarks import sphere_batch_objective, sphere_spec
 from nca_qd.qd.emitters import ESEmitters, IsoLineEmitter
 from nca_qd.qd.loop import QDLoop
 
-OBJ = jax.jit(lambda s, k: sphere_objective(s))
+OBJ = sphere_batch_objective()
 
 
 def _run(emitter, spec, iters, seed=0):
@@ -52,10 +52,10 @@ def test_emitters_over_lax_map_do_not_freeze():
     code = textwrap.dedent(
         """
         import jax
-        from nca_qd.qd.benchmarks import sphere_objective, sphere_spec
+        from nca_qd.qd.benchmarks import sphere_batch_objective, sphere_spec
         from nca_qd.qd.emitters import ESEmitters
         from nca_qd.qd.loop import QDLoop
-        loop = QDLoop(ESEmitters(5, 10, 100, 0.5), jax.jit(lambda s, k: sphere_objective(s)), 100, sphere_spec())
+        loop = QDLoop(ESEmitters(5, 10, 100, 0.5), sphere_batch_objective(), 100, sphere_spec())
         st = loop.init(jax.random.PRNGKey(0))
         for _ in range(6):
             st, m, _ = loop.step(st)

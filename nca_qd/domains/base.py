@@ -31,6 +31,8 @@ class EvalBatch:
     result_objective: ``[b]`` f_res for the result archive (defaults to ``objective``).
     valid: ``[b]`` bool, False where scoring failed (e.g. repair found nothing); such solutions
         get the lowest objective and are not inserted in the archives.
+    result_valid: ``[b]`` bool, which solutions the result archive may take (defaults to
+        ``valid``; the multi-agent domains take only layouts with exact simulations).
     extras: per-solution arrays or lists worth keeping (repaired layouts, timings, ...).
     """
 
@@ -38,6 +40,7 @@ class EvalBatch:
     measures: Any
     result_objective: Any = None
     valid: Any = None
+    result_valid: Any = None
     extras: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -45,18 +48,24 @@ class EvalBatch:
             self.result_objective = self.objective
         if self.valid is None:
             self.valid = np.ones(np.shape(self.objective), dtype=bool)
+        if self.result_valid is None:
+            self.result_valid = self.valid
 
 
 # A pytree, so that jitted evaluators can return it.
 jax.tree_util.register_dataclass(
     EvalBatch,
-    data_fields=["objective", "measures", "result_objective", "valid", "extras"],
+    data_fields=["objective", "measures", "result_objective", "valid", "result_valid", "extras"],
     meta_fields=[],
 )
 
 
-# A batched scorer: (regions [b, h, w] int, key) -> EvalBatch.
-Evaluator = Callable[[jax.Array, jax.Array], EvalBatch]
+# A batched scorer: (regions [b, h, w] int, key, context) -> EvalBatch. ``context`` (a
+# :class:`nca_qd.scoring.mapf.ScoringContext` or None) tells what the search knows, e.g. the
+# result archive's elites; scorers that do not need it ignore it. A scorer may carry
+# ``metric_names`` (scalars it reports in ``extras["metrics"]`` for the metrics CSV) and
+# ``close()`` (release worker pools).
+Evaluator = Callable[..., EvalBatch]
 
 
 class Domain(ABC):
@@ -92,8 +101,9 @@ class Domain(ABC):
         """Generated region(s) ``[..., h, w]`` -> full layout(s) in ``layout_tiles`` indices."""
 
     @abstractmethod
-    def make_evaluator(self) -> Evaluator:
-        """A batched scorer for generated regions, built once (jit compile happens here)."""
+    def make_evaluator(self, run_cfg: Mapping[str, Any] | None = None) -> Evaluator:
+        """A batched scorer for generated regions, built once (jit compile happens here).
+        ``run_cfg`` is the whole run config (its ``eval`` block: evaluation backend, screening)."""
 
     @property
     def measure_names(self) -> list[str]:

@@ -1,17 +1,18 @@
 """Manufacturing domain, paper §4 and appendix B.2.
 
 The NCA generates the whole map over ``.e012`` (empty, endpoint, three station kinds).
-Measures: environment entropy (K = 5) and the number of workstations. Scoring needs the
-simulators (issue 6).
+Measures: environment entropy (K = 5) and the number of workstations. Scoring:
+:mod:`nca_qd.scoring.mapf`.
 """
 
 from __future__ import annotations
+
+from typing import Any, Mapping
 
 import numpy as np
 
 from nca_qd.domains.warehouse import place_block
 from nca_qd.domains.base import Domain, Evaluator
-from nca_qd.errors import NcaQdError
 from nca_qd.repair import manufacturing as layout
 
 SEED_BLOCK = ["eeee", "0221", "eeee"]
@@ -38,6 +39,8 @@ class ManufacturingDomain(Domain):
         ent = np.asarray(batch_entropy(layouts, len(self.gen_tiles)))
         return np.stack([ent, station_count(layouts, layout.STATIONS)], axis=-1)
 
-    def make_evaluator(self) -> Evaluator:
-        raise NcaQdError(f"the {self.name} QD evaluation needs the lifelong-MAPF simulators "
-                         "(issue 6); repair, render and measures are available")
+    def make_evaluator(self, run_cfg: Mapping[str, Any] | None = None) -> Evaluator:
+        """Repair -> screen -> exact RHCR (:class:`nca_qd.scoring.mapf.MapfScorer`)."""
+        from nca_qd.scoring.mapf import MapfScorer
+
+        return MapfScorer(self, run_cfg)

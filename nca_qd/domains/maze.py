@@ -211,7 +211,7 @@ class MazeDomain(Domain):
     def horizon(self, gen_shape: tuple[int, int]) -> int:
         return horizon_for((gen_shape[0] + 2, gen_shape[1] + 2), self.horizon_factor)
 
-    def make_evaluator(self) -> Evaluator:
+    def make_evaluator(self, run_cfg: Mapping[str, Any] | None = None) -> Evaluator:
         policy = maze_agent.get_policy(self.agent_kind)
         names = self.measure_names
         episodes, factor, k = self.episodes, self.horizon_factor, self.n_tiles
@@ -243,7 +243,7 @@ class MazeDomain(Domain):
             }
             return solvable.astype(jnp.float32), measures, extras
 
-        def evaluator(regions, key) -> EvalBatch:
+        def evaluator(regions, key, context=None) -> EvalBatch:  # context: not needed here
             objective, measures, extras = evaluate(regions, key)
             return EvalBatch(objective=objective, measures=measures, extras=extras)
 

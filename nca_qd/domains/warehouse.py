@@ -3,10 +3,12 @@
 The NCA generates the storage area over ``.@e``; :func:`assemble` adds the fixed workstation
 columns. Measures: environment entropy of the storage area (K = 3) and the number of
 4-connected shelf components. The two variants differ only in the simulator's task assigner
-(left workstations 5x as likely in ``uneven``), so scoring waits for the simulators (issue 6).
+(left workstations 5x as likely in ``uneven``). Scoring: :mod:`nca_qd.scoring.mapf`.
 """
 
 from __future__ import annotations
+
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -59,9 +61,11 @@ class WarehouseDomain(Domain):
         comps = shelf_components(layouts, layout.SHELF)
         return np.stack([ent, comps], axis=-1)
 
-    def make_evaluator(self) -> Evaluator:
-        raise NcaQdError(f"the {self.name} QD evaluation needs the lifelong-MAPF simulators "
-                         "(issue 6); repair, render and measures are available")
+    def make_evaluator(self, run_cfg: Mapping[str, Any] | None = None) -> Evaluator:
+        """Repair -> screen -> exact RHCR (:class:`nca_qd.scoring.mapf.MapfScorer`)."""
+        from nca_qd.scoring.mapf import MapfScorer
+
+        return MapfScorer(self, run_cfg)
 
 
 class WarehouseUnevenDomain(WarehouseDomain):

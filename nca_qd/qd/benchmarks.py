@@ -32,6 +32,16 @@ def sphere_objective(solutions: jax.Array, key: jax.Array | None = None) -> Eval
     return EvalBatch(objective=objective, measures=measures)
 
 
+def sphere_batch_objective():
+    """:func:`sphere_objective` jitted, in the QD loop's ``(solutions, key, context)`` form."""
+    jitted = jax.jit(sphere_objective)
+
+    def objective(solutions: jax.Array, key: jax.Array, context=None) -> EvalBatch:
+        return jitted(solutions)
+
+    return objective
+
+
 def sphere_spec(n: int = 100, learning_rate: float = 0.01, threshold_min: float = 0.0,
                 cells: int = 100) -> ArchiveSpec:
     r = BOUND * n / 2

@@ -1,8 +1,9 @@
 """The QD loop: ask -> evaluate -> add to both archives -> tell, state in, state out.
 
 Domain-agnostic: it searches over flat parameter vectors with any batched objective
-``f(solutions [b, d], key) -> EvalBatch`` (objective, measures, optionally a separate
-result objective and a validity mask). ``ask`` and ``add + tell`` are each one jitted call;
+``f(solutions [b, d], key, context) -> EvalBatch`` (objective, measures, optionally a separate
+result objective and validity masks; ``context`` lets a scorer look up the result archive's
+elites, which the multi-agent domains use to decide where exact simulation is worth it). ``ask`` and ``add + tell`` are each one jitted call;
 the evaluation between them is the domain's (a jitted JAX function for the maze, a host-side
 pipeline of repair and simulation for the warehouse).
 
@@ -27,7 +28,7 @@ from qdax.core.containers.mapelites_repertoire import MapElitesRepertoire
 from nca_qd.domains.base import EvalBatch
 from nca_qd.qd.archive import ThresholdRepertoire, archive_stats, grid_cell_indices
 
-Objective = Callable[[jax.Array, jax.Array], EvalBatch]
+Objective = Callable[..., EvalBatch]  # (solutions [b, d], key, context) -> EvalBatch
 
 
 class QDState(flax.struct.PyTreeNode):
@@ -79,13 +80,14 @@ class QDLoop:
         solutions, emitter_state = self.emitter.ask(state.emitter_state, state.opt_archive, k_ask)
         return solutions, k_eval, state.replace(key=key, emitter_state=emitter_state)
 
-    def _update_impl(self, state: QDState, solutions, objective, result_objective, measures, valid):
+    def _update_impl(self, state: QDState, solutions, objective, result_objective, measures, valid,
+                     result_valid):
         chex.assert_shape(solutions, (self.batch_size, self.dim))
-        chex.assert_shape([objective, result_objective, valid], (self.batch_size,))
+        chex.assert_shape([objective, result_objective, valid, result_valid], (self.batch_size,))
         chex.assert_shape(measures, (self.batch_size, len(self.spec.cells)))
         key, k_tell = jax.random.split(state.key)
         f_opt = jnp.where(valid, objective, -jnp.inf).astype(jnp.float32)
-        f_res = jnp.where(valid, result_objective, -jnp.inf).astype(jnp.float32)
+        f_res = jnp.where(valid & result_valid, result_objective, -jnp.inf).astype(jnp.float32)
         measures = measures.astype(jnp.float32)
         cells = grid_cell_indices(measures, self.spec.cells, self.spec.ranges)
         opt_archive, info = state.opt_archive.add_with_info(solutions, measures, f_opt, cells)
@@ -102,15 +104,30 @@ class QDLoop:
                    "batch_best": jnp.max(f_res), "batch_added": jnp.sum(info.status > 0)}
         return new, metrics
 
+    def context(self, state: QDState):
+        """What a scorer may ask of the search: the result archive's elite in a cell."""
+        from nca_qd.scoring.mapf import ScoringContext
+
+        spec = self.spec
+        fitness = state.res_archive.fitnesses[:, 0]
+
+        def result_elite(measures: np.ndarray) -> np.ndarray:
+            cells = grid_cell_indices(jnp.asarray(measures, jnp.float32), spec.cells, spec.ranges)
+            return np.asarray(fitness[cells], dtype=np.float64)
+
+        return ScoringContext(result_elite=result_elite)
+
     def step(self, state: QDState) -> tuple[QDState, dict[str, float], EvalBatch]:
         """One iteration; returns the new state, scalar metrics and the batch's evaluation."""
         t0 = time.perf_counter()
         solutions, k_eval, state = self._ask(state)
-        ev = self.objective(solutions, k_eval)
+        ev = self.objective(solutions, k_eval, self.context(state))
         state, metrics = self._update(state, solutions, jnp.asarray(ev.objective),
                                       jnp.asarray(ev.result_objective), jnp.asarray(ev.measures),
-                                      jnp.asarray(ev.valid))
+                                      jnp.asarray(ev.valid), jnp.asarray(ev.result_valid))
         out = {k: float(v) for k, v in jax.device_get(metrics).items()}
+        out.update({k: v if isinstance(v, int) else float(v)
+                    for k, v in dict(ev.extras.get("metrics", {})).items()})
         out["iteration"] = int(state.iteration)
         out["evaluations"] = int(state.evaluations)
         out["step_seconds"] = time.perf_counter() - t0

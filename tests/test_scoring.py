@@ -1,0 +1,240 @@
+"""The multi-agent scoring pipeline: evaluation backends, exact-run selection, one QD batch
+(repair -> screen -> exact RHCR) checked against independent recomputation, and short
+warehouse / manufacturing runs end to end."""
+
+from __future__ import annotations
+
+import csv
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from experiments.cli import compose_config
+from nca_qd.errors import NcaQdError
+from nca_qd.scoring.backend import JobFailed, LocalBackend, make_backend, map_jobs
+from nca_qd.scoring.mapf import ScoringConfig, choose_exact
+
+REPO = Path(__file__).resolve().parents[1]
+
+# A tiny warehouse: 9x10 storage area (9x14 with the workstation columns), 10 agents.
+TINY_WAREHOUSE = [
+    "domain=warehouse_even", "domain.size.train=[9,10]", "domain.size.eval=[13,14]",
+    "domain.repair.n_shelves.train=20", "domain.repair.n_shelves.eval=40",
+    "domain.n_agents.train=10", "domain.n_agents.eval=20", "domain.simulation.T=60",
+    "domain.simulation.n_runs=2", "domain.measures.ranges=[[0,1],[0,30]]",
+    "domain.measures.cells=[10,10]", "qd.n_emitters=2", "qd.batch_size=3", "qd.progress=false",
+]
+
+
+# ------------------------------------------------------------------------------- backends
+def _square(x):
+    return x * x
+
+
+def _fail_on_odd(x):
+    if x % 2:
+        raise ValueError(f"odd {x}")
+    return x
+
+
+def _die_once(marker_dir, x):
+    """Kills its worker process the first time it sees ``x == 3`` (a marker file remembers)."""
+    marker = Path(marker_dir) / f"died_{x}"
+    if x == 3 and not marker.exists():
+        marker.write_text("x")
+        os._exit(1)
+    return x + 100
+
+
+@pytest.mark.parametrize("workers", [0, 2])
+def test_local_backend_keeps_order_and_reports_failures(workers):
+    be = LocalBackend(workers, retries=1)
+    try:
+        assert be.map(_square, range(7)) == [x * x for x in range(7)]
+        out = be.map(_fail_on_odd, range(4))
+        assert out[0] == 0 and out[2] == 2
+        assert isinstance(out[1], JobFailed) and "odd 1" in out[1].error
+        assert map_jobs(be, _square, []) == []
+    finally:
+        be.close()
+
+
+def test_a_dead_worker_loses_no_returned_result_and_its_job_is_retried(tmp_path):
+    be = LocalBackend(2, retries=2)
+    try:
+        out = be.map(_die_once, [str(tmp_path)] * 6, range(6))
+    finally:
+        be.close()
+    assert out == [x + 100 for x in range(6)]
+    assert (tmp_path / "died_3").exists()  # the worker did die
+
+
+def test_dask_backend_runs_jobs_on_a_cluster():
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
+                                  dashboard_address=None) as cluster:
+        be = make_backend({"scheduler": cluster.scheduler_address})
+        try:
+            assert be.name == "dask"
+            assert be.map(_square, range(5)) == [0, 1, 4, 9, 16]
+            out = be.map(_fail_on_odd, [2, 3])
+            assert out[0] == 2 and isinstance(out[1], JobFailed)
+        finally:
+            be.close()
+
+
+def test_unreachable_scheduler_is_a_clear_error_or_falls_back():
+    pytest.importorskip("distributed")
+    cfg = {"scheduler": "tcp://127.0.0.1:9", "connect_timeout_s": 1}
+    with pytest.raises(NcaQdError, match="cannot reach the Dask scheduler at tcp://127.0.0.1:9"):
+        make_backend(cfg)
+    be = make_backend({**cfg, "fallback_local": True, "workers": 0})
+    assert be.name == "local"
+
+
+# ------------------------------------------------------------------------ exact selection
+def test_choose_exact_takes_empty_cells_and_likely_improvements_only():
+    cfg = ScoringConfig(exact_margin=0.1, exact_random_share=0.0)
+    predicted = np.array([1.0, 1.0, 5.0, 4.0, 3.0])
+    elite = np.array([-np.inf, 2.0, 5.2, 5.0, -np.inf])
+    valid = np.array([True, True, True, True, False])
+    got = choose_exact(predicted, elite, valid, cfg, np.random.default_rng(0))
+    # empty cell; 1.1 < 2; 5.5 >= 5.2; 4.4 < 5; invalid never
+    assert got.tolist() == [True, False, True, False, False]
+    every = choose_exact(predicted, elite, valid, ScoringConfig(exact="all"), np.random.default_rng(0))
+    assert every.tolist() == valid.tolist()
+    share = ScoringConfig(exact_margin=0.0, exact_random_share=0.5)
+    n = 4000
+    picked = choose_exact(np.zeros(n), np.ones(n), np.ones(n, bool), share, np.random.default_rng(1))
+    assert 0.45 < picked.mean() < 0.55
+
+
+def test_scoring_config_rejects_bad_values():
+    with pytest.raises(NcaQdError, match="eval.exact must be one of"):
+        ScoringConfig.from_cfg({"exact": "sometimes"})
+    with pytest.raises(NcaQdError, match="exact_random_share"):
+        ScoringConfig.from_cfg({"exact_random_share": 2})
+    assert ScoringConfig.from_cfg({"screen": False}).exact == "all"
+
+
+# ------------------------------------------------------------------------------ one batch
+@pytest.fixture(scope="module")
+def tiny_scorer():
+    from nca_qd.domains import make_domain
+    from nca_qd.pipeline import make_generator
+
+    cfg = compose_config("run", TINY_WAREHOUSE + ["eval.workers=0"])
+    domain = make_domain(cfg.domain)
+    gen = make_generator(domain)
+    scorer = domain.make_evaluator(cfg)
+    yield cfg, domain, gen, scorer
+    scorer.close()
+
+
+def _regions(domain, gen, b, seed):
+    import jax
+
+    sol = 0.3 * jax.random.normal(jax.random.PRNGKey(seed), (b, gen.n_params))
+    return np.asarray(gen.generate(sol, domain.seed(domain.gen_shape("train")), 20))
+
+
+def test_batch_scores_match_independent_recomputation(tiny_scorer):
+    """Repaired layouts are valid (independent validator); exact throughputs equal direct RHCR
+    runs with the same seeds; f_opt = f + alpha * Delta; the result archive only gets layouts
+    with exact runs; measures are those of the repaired layouts."""
+    import jax
+
+    from nca_qd.io import array_to_rows
+    from nca_qd.repair import make_rules
+    from nca_qd.repair.validator import check
+    from nca_qd.scoring.mapf import ScoringContext
+    from nca_qd.sim.rhcr import simulate
+
+    cfg, domain, gen, scorer = tiny_scorer
+    regions = _regions(domain, gen, 4, seed=1)
+    key = jax.random.PRNGKey(7)
+    # Cells 0.. are "occupied" by an unbeatable elite except where the measures fall in
+    # the first entropy column: those cells are empty, so those layouts must get exact runs.
+    ctx = ScoringContext(result_elite=lambda m: np.where(np.asarray(m)[:, 0] < 0.1, -np.inf, 1e9))
+    ev = scorer(regions, key, ctx)
+    ex = ev.extras
+    rules = make_rules("warehouse_even", ex["repaired"].shape[1:], n_shelves=20)
+    seed0 = int(np.asarray(key, dtype=np.uint32).ravel()[-1] % np.uint32(2**31 - 1))
+    for i in range(4):
+        assert ev.valid[i], ex["repair_status"][i]
+        assert check(ex["repaired"][i], rules) is None
+        np.testing.assert_allclose(ev.measures[i], domain.measures(ex["repaired"][i][None])[0],
+                                   rtol=1e-6)
+        empty = ev.measures[i][0] < 0.1
+        assert bool(ev.result_valid[i]) == (empty or not np.isnan(ex["exact"][i]))
+        if not np.isnan(ex["exact"][i]):
+            rows = array_to_rows(ex["repaired"][i], domain.layout_tiles)
+            direct = np.mean([simulate(rows, "warehouse_even", 10, 60, seed0 + s).throughput
+                              for s in range(2)])
+            assert ev.result_objective[i] == pytest.approx(direct, abs=1e-6)
+            f = ex["exact"][i]
+        else:
+            f = ex["screened"][i] * scorer.cfg.screen_scale
+        assert ev.objective[i] == pytest.approx(f + 5.0 * ex["similarity"][i], rel=1e-5)
+    m = ex["metrics"]
+    assert m["n_exact"] == int(np.sum(~np.isnan(ex["exact"]))) and m["exact_runs"] == 2 * m["n_exact"]
+
+
+def test_a_failed_repair_is_recorded_and_the_batch_goes_on(tiny_scorer):
+    import jax
+
+    _, domain, gen, scorer = tiny_scorer
+    saved = scorer.repair_opts
+    scorer.repair_opts = {**saved, "n_shelves": 10_000}  # impossible: more shelves than tiles
+    try:
+        ev = scorer(_regions(domain, gen, 3, seed=2), jax.random.PRNGKey(0))
+    finally:
+        scorer.repair_opts = saved
+    assert not ev.valid.any() and not ev.result_valid.any()
+    assert set(ev.extras["repair_status"]) <= {"infeasible", "no_solution", "error"}
+    assert ev.extras["metrics"]["n_exact"] == 0
+
+
+# ------------------------------------------------------------------------------ full runs
+def _run(args, timeout=600):
+    env = {**os.environ, "JAX_PLATFORMS": "cpu"}
+    return subprocess.run([sys.executable, "-m", "experiments.run", *args], cwd=REPO, env=env,
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def test_tiny_warehouse_run_writes_outputs_and_resumes_identically(tmp_path):
+    common = TINY_WAREHOUSE + ["eval.workers=0", "output.n_best=2"]
+    full = _run(common + ["qd.n_evals=18", f"run_dir={tmp_path / 'full'}"])
+    assert full.returncode == 0, full.stderr[-2000:]
+    part = _run(common + ["qd.n_evals=12", "output.pictures=false", f"run_dir={tmp_path / 'part'}"])
+    assert part.returncode == 0, part.stderr[-2000:]
+    more = _run([f"resume={tmp_path / 'part'}", "qd.n_evals=18"])
+    assert more.returncode == 0, more.stderr[-2000:]
+    for name in ("best_train_repaired.png", "best_eval_repaired.png", "archive_result.png",
+                 "curves.png"):
+        assert (tmp_path / "full" / name).is_file(), name
+    with open(tmp_path / "full" / "metrics.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [int(r["iteration"]) for r in rows] == [1, 2, 3]
+    assert all(int(r["n_exact"]) <= int(r["n_valid"]) <= 6 for r in rows)
+    assert int(rows[0]["n_exact"]) >= 1  # an empty result archive: its first layouts go exact
+    a = np.load(tmp_path / "full" / "archive_result.npz")
+    b = np.load(tmp_path / "part" / "archive_result.npz")
+    np.testing.assert_array_equal(a["objective"], b["objective"])
+    np.testing.assert_array_equal(a["genotypes"], b["genotypes"])
+
+
+@pytest.mark.parametrize("args, message", [
+    (["eval.exact=sometimes"], "eval.exact must be one of selective, all"),
+    (["eval.scheduler=tcp://127.0.0.1:9", "eval.connect_timeout_s=1"],
+     "cannot reach the Dask scheduler at tcp://127.0.0.1:9"),
+])
+def test_bad_eval_settings_get_one_line_and_exit_2(args, message, tmp_path):
+    res = _run(TINY_WAREHOUSE + ["qd.n_evals=6", f"run_dir={tmp_path / 'r'}"] + args, timeout=120)
+    assert res.returncode == 2
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and message in lines[0], res.stderr
