@@ -1,6 +1,6 @@
 """``make bench``: every benchmark section in turn (each prints its own figures).
 
-    python -m benchmarks.run_all [section ...]   # sections: foundation, rhcr, repair, screen
+    python -m benchmarks.run_all [section ...]   # sections: foundation, rhcr, repair, screen, search
 """
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import importlib
 import sys
 import time
 
-SECTIONS = ["foundation", "rhcr", "repair", "screen"]
+SECTIONS = ["foundation", "rhcr", "repair", "screen", "search"]
 
 
 def main(argv: list[str]) -> int:

@@ -1,0 +1,86 @@
+"""Cost of one warehouse / manufacturing QD iteration at the paper's settings (``make bench``).
+
+Runs a few CMA-MAE iterations (5 emitters x 10 NCA generators at 33x36, 200 agents, T=1,000,
+N_e=5) in a temporary directory and prints the mean per-iteration wall time, its split
+(generate / repair / screen / exact RHCR), the exact runs made, the screen's error on them, and
+the projected wall time of the paper's 10,000-evaluation search (target: <= 24 h on 2 cores;
+the paper's cluster runs cost hundreds of CPU-hours).
+
+    python -m benchmarks.bench_search [--domain warehouse_even] [--iters 4]
+    python -m benchmarks.bench_search --run-dir /path/to/run     # summarise a run's metrics.csv
+
+The first iteration includes JAX compilation (NCA, screen) and the worker pool's start and is
+reported apart. Early iterations send most layouts to exact RHCR (the result archive is empty);
+later ones fewer, so a projection from early iterations is pessimistic.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import statistics
+import tempfile
+from pathlib import Path
+
+STAGES = ("generate_seconds", "repair_seconds", "screen_seconds", "exact_seconds")
+
+
+def summarise(rows: list[dict[str, str]], n_evals: int = 10_000) -> None:
+    if not rows:
+        print("no iterations recorded")
+        return
+    first, rest = rows[0], rows[1:] or rows[:1]
+
+    def mean(key: str, rs=rest) -> float:
+        vals = [float(r[key]) for r in rs if r.get(key) not in (None, "", "nan")]
+        return statistics.fmean(vals) if vals else float("nan")
+
+    batch = int(rows[0]["evaluations"])
+    step = mean("step_seconds")
+    print(f"iterations: {len(rows)} (batch {batch}); first iteration {float(first['step_seconds']):.1f} s "
+          f"(includes compilation and pool start)")
+    print(f"per iteration (iterations 2..{len(rows)}): {step:.1f} s wall = "
+          + ", ".join(f"{k.split('_')[0]} {mean(k):.1f} s" for k in STAGES))
+    print(f"exact RHCR: {mean('n_exact'):.1f} of {batch} layouts per iteration "
+          f"({mean('exact_runs'):.0f} runs); screen x scale minus exact: bias {mean('screen_bias'):+.3f}, "
+          f"mean |error| {mean('screen_mae'):.3f} (throughput)")
+    iters = n_evals / batch
+    print(f"projected {n_evals:,} evaluations: {iters:.0f} iterations x {step:.1f} s = "
+          f"{iters * step / 3600:.1f} h (target <= 24 h)")
+    last = rows[-1]
+    print(f"archive after {last['evaluations']} evaluations: QD-score {float(last['qd_score']):.1f}, "
+          f"coverage {float(last['coverage']):.4f}, best f_res {float(last['best_objective']):.3f}")
+
+
+def run(domain: str, iters: int) -> list[dict[str, str]]:
+    from experiments.cli import compose_config
+    from nca_qd.experiment import Experiment
+
+    with tempfile.TemporaryDirectory() as tmp:
+        cfg = compose_config("run", [f"domain={domain}", f"qd.n_evals={50 * iters}",
+                                     "qd.progress=false", "output.pictures=false"])
+        Experiment(cfg, Path(tmp)).run()
+        with open(Path(tmp) / "metrics.csv") as fh:
+            return list(csv.DictReader(fh))
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--domain", default="warehouse_even")
+    ap.add_argument("--iters", type=int, default=4)
+    ap.add_argument("--run-dir", default=None)
+    args = ap.parse_args(argv if argv is not None else [])
+    if args.run_dir:
+        with open(Path(args.run_dir) / "metrics.csv") as fh:
+            rows = list(csv.DictReader(fh))
+        print(f"== search cost of {args.run_dir}")
+    else:
+        print(f"== search cost: {args.domain}, {args.iters} CMA-MAE iterations at the paper's settings")
+        rows = run(args.domain, args.iters)
+    summarise(rows)
+
+
+if __name__ == "__main__":
+    import sys
+
+    main(sys.argv[1:])
