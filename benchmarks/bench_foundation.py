@@ -60,11 +60,12 @@ def bench_generation() -> None:
               f"(median of {len(times)}; paper 60 ms/env at S, 130 ms at S_eval, 16 cores)")
 
 
-def bench_maze_iteration(iters: int) -> None:
+def bench_maze_iteration(iters: int, agent: str) -> None:
+    """Wall time of one maze CMA-MAE iteration with the path-length measure from ``agent``."""
     from experiments.cli import compose_config
     from nca_qd.experiment import Experiment
 
-    cfg = compose_config("run", ["domain=maze", "qd.progress=false"])
+    cfg = compose_config("run", ["domain=maze", "qd.progress=false", f"domain.agent.kind={agent}"])
     exp = Experiment(cfg, run_dir="/tmp/nca_qd_bench_unused")
     state = exp.initial_state()
     state, _, _ = exp.loop.step(state)  # compile
@@ -74,7 +75,7 @@ def bench_maze_iteration(iters: int) -> None:
         times.append(m["step_seconds"])
     med, mean = statistics.median(times), statistics.mean(times)
     total = mean * exp.n_iterations
-    print(f"maze CMA-MAE iteration (b=150, wall_follower agent, 50 episodes): median "
+    print(f"maze CMA-MAE iteration (b=150, {agent} agent, 50 episodes): median "
           f"{med:.3f} s, mean {mean:.3f} s, max {max(times):.3f} s (eigenbasis refresh) over "
           f"{iters}; the default {cfg.qd.n_evals:,}-evaluation run = {exp.n_iterations} "
           f"iterations -> {total / 60:.1f} min at the mean (target <= 60 min)")
@@ -83,11 +84,14 @@ def bench_maze_iteration(iters: int) -> None:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--sphere-iters", type=int, default=10_000)
-    ap.add_argument("--maze-iters", type=int, default=60)
+    ap.add_argument("--maze-iters", type=int, default=30)
+    ap.add_argument("--maze-agents", default="learned,wall_follower",
+                    help="agents behind the path-length measure (the first is the default)")
     args = ap.parse_args([] if argv is None else argv)
     print("== foundation ==")
     bench_generation()
-    bench_maze_iteration(args.maze_iters)
+    for agent in args.maze_agents.split(","):
+        bench_maze_iteration(args.maze_iters, agent)
     bench_sphere(args.sphere_iters)
 
 
