@@ -15,7 +15,8 @@ the alphabet ``" X"`` (0 = empty, 1 = wall); :meth:`MazeDomain.assemble` surroun
   ``path_length``: the mean episode length of the agent over ``cfg["agent"]["episodes"]`` episodes
   (a miss counts the horizon = ``horizon_factor`` x tiles of the bordered layout; 648 at 18x18;
   an unsolvable maze is not simulated and counts the horizon). The agent
-  (``cfg["agent"]["kind"]``) is one of :data:`nca_qd.sim.maze_agent.POLICIES`.
+  (``cfg["agent"]["kind"]``, default ``learned``: :mod:`nca_qd.agent`) is one of
+  :data:`nca_qd.sim.maze_agent.POLICIES`.
 """
 
 from __future__ import annotations
@@ -31,10 +32,13 @@ from nca_qd.domains.base import Domain, EvalBatch, Evaluator
 from nca_qd.errors import NcaQdError
 from nca_qd.measures import batch_entropy, tile_count
 from nca_qd.sim import maze_agent
+import nca_qd.agent  # noqa: F401,E402  (registers the "learned" policy kind)
 
 EMPTY, WALL = maze_agent.EMPTY, maze_agent.WALL
 MEASURES = ("n_walls", "entropy", "path_length")
-DEFAULT_AGENT = {"kind": "wall_follower", "episodes": 50, "horizon_factor": 2}
+# The learned agent (nca_qd/agent: the paper's ACCEL-trained LSTM policy, shipped weights) is
+# the default; the rule-based kinds stay available through cfg["agent"]["kind"].
+DEFAULT_AGENT = {"kind": "learned", "episodes": 50, "horizon_factor": 2}
 
 
 # --------------------------------------------------------------------------- start and goal
@@ -142,7 +146,7 @@ def _run_fn(kind: str, episodes: int, horizon: int, record: bool):
     return jax.jit(partial(maze_agent.rollout, policy, episodes=episodes, horizon=horizon))
 
 
-def run_agent(layout, start, goal, key, kind: str = "wall_follower", episodes: int = 50,
+def run_agent(layout, start, goal, key, kind: str = DEFAULT_AGENT["kind"], episodes: int = 50,
               horizon: int | None = None, record_path: bool = False) -> AgentRun:
     """Run ``episodes`` episodes of agent ``kind`` on one bordered layout ``[H, W]`` (any size).
 

@@ -1,0 +1,305 @@
+"""A training run of the maze agent on disk (``python -m experiments.train_agent``).
+
+The run directory holds ``config.yaml``, ``checkpoint.msgpack`` (the whole
+:class:`~nca_qd.agent.ppo.TrainState` plus counters; atomic, every ``checkpoint_every`` updates,
+at the end and on Ctrl-C), ``best.msgpack`` (the parameters with the best held-out success) and
+``metrics.csv``: per update ``update, env_steps, wall_seconds, steps_per_second, mean_return,
+train_success`` (episodes of the training levels), the losses, the level sampler's figures and,
+every ``heldout.every_updates``, ``heldout_success`` / ``heldout_length`` on the fixed held-out
+set (full horizon). Deterministic given ``seed``; a resumed run continues from its checkpoint.
+"""
+
+from __future__ import annotations
+
+import csv
+import datetime
+import io
+import logging
+import time
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from omegaconf import DictConfig, OmegaConf
+
+from nca_qd.agent.levels import Levels, random_levels, solve
+from nca_qd.agent.network import make_net, n_params
+from nca_qd.agent.ppo import Trainer, TrainState, make_heldout_eval
+from nca_qd.agent.shipped import save_agent
+from nca_qd.errors import NcaQdError
+from nca_qd.io import atomic_write_text, load_pytree, reference_maps_dir, save_pytree
+
+log = logging.getLogger("nca_qd.agent")
+
+CONFIG_FILE, METRICS_FILE = "config.yaml", "metrics.csv"
+CHECKPOINT_FILE, BEST_FILE = "checkpoint.msgpack", "best.msgpack"
+COLUMNS = ["update", "env_steps", "wall_seconds", "steps_per_second", "mean_return",
+           "train_success", "episodes", "loss", "policy_loss", "value_loss", "entropy",
+           "replayed", "edited", "nca", "buffer_size", "buffer_score", "level_score",
+           "heldout_success", "heldout_length"]
+
+
+def validate(cfg: DictConfig) -> None:
+    """Check the user-facing numbers; one :class:`NcaQdError` naming the field."""
+
+    def number(path: str, kind=int, low=0.0, high=None, strict=True):
+        v = OmegaConf.select(cfg, path)
+        ok = isinstance(v, (int, float) if kind is float else int) and not isinstance(v, bool)
+        if ok:
+            ok = (v > low if strict else v >= low) and (high is None or v <= high)
+        if not ok:
+            rng = f"> {low}" if strict else f">= {low}"
+            raise NcaQdError(f"{path} must be a{'n integer' if kind is int else ' number'} "
+                             f"{rng}{'' if high is None else f' and <= {high}'}, got {v!r}")
+
+    for p in ("total_env_steps", "n_envs", "horizon", "network.hidden", "network.conv_features",
+              "network.dir_features", "network.head_hidden", "ppo.epochs", "ppo.minibatches",
+              "levels.buffer_size", "levels.max_edits", "levels.tries", "heldout.episodes",
+              "heldout.every_updates", "checkpoint_every"):
+        number(p)
+    number("heldout.n_random", low=0, strict=False)
+    number("levels.min_fill", low=0, strict=False)
+    for p in ("ppo.lr", "ppo.clip", "ppo.max_grad_norm", "levels.temperature"):
+        number(p, float)
+    for p in ("ppo.gamma", "ppo.gae_lambda", "levels.replay_prob", "levels.edit_prob",
+              "levels.staleness"):
+        number(p, float, 0.0, 1.0, strict=False)
+    for p in ("ppo.vf_coef", "ppo.ent_coef"):
+        number(p, float, 0.0, strict=False)
+    if not isinstance(cfg.seed, int) or isinstance(cfg.seed, bool):
+        raise NcaQdError(f"seed must be an integer, got {cfg.seed!r}")
+    if cfg.time_limit_s is not None:
+        number("time_limit_s", float)
+    inter = cfg.interior
+    if (inter is None or len(inter) != 2
+            or not all(isinstance(v, int) and not isinstance(v, bool) and v >= 2 for v in inter)):
+        raise NcaQdError(f"interior must be two integers >= 2, got {inter!r}")
+    if cfg.levels.method not in ("accel", "dr"):
+        raise NcaQdError(f"levels.method must be accel or dr, got {cfg.levels.method!r}")
+    for p in ("levels.density", "heldout.density"):
+        d = OmegaConf.select(cfg, p)
+        if (d is None or len(d) != 2 or not all(isinstance(v, (int, float)) for v in d)
+                or not 0 <= d[0] <= d[1] <= 1):
+            raise NcaQdError(f"{p} must be [low, high] with 0 <= low <= high <= 1, got {d!r}")
+    if OmegaConf.select(cfg, "levels.nca_prob") is not None:  # runs from before NCA levels lack it
+        number("levels.nca_prob", float, 0.0, 1.0, strict=False)
+        number("levels.nca_iters")
+        sig = cfg.levels.nca_sigma
+        if (sig is None or len(sig) != 2 or not all(isinstance(v, (int, float)) for v in sig)
+                or not 0 <= sig[0] <= sig[1]):
+            raise NcaQdError(f"levels.nca_sigma must be [low, high] with 0 <= low <= high, got {sig!r}")
+    if cfg.n_envs % cfg.ppo.minibatches:
+        raise NcaQdError(f"n_envs={cfg.n_envs} is not divisible by ppo.minibatches="
+                         f"{cfg.ppo.minibatches}")
+
+
+def heldout_levels(cfg: DictConfig) -> tuple[Levels, list[str]]:
+    """The fixed held-out set: ``n_random`` random solvable mazes + the paper's map (bordered)."""
+    from nca_qd.io import load_map
+
+    h, w = (int(v) for v in cfg.interior)
+    hd = cfg.heldout
+    names = [f"random_{i}" for i in range(int(hd.n_random))]
+    parts = []
+    if int(hd.n_random) > 0:
+        parts.append(random_levels(jax.random.PRNGKey(int(hd.seed)), int(hd.n_random), (h, w),
+                                   tuple(hd.density), tries=8))
+    if hd.paper_map:
+        path = reference_maps_dir() / str(hd.paper_map)
+        if path.is_file():
+            region = load_map(path, " X").to_array(" X")
+            if region.shape == (h, w):
+                layout = jnp.pad(jnp.asarray(region), 1, constant_values=1)
+                length, start, goal = solve(layout)
+                if int(length) > 0:
+                    parts.append(Levels(layout[None], start[None], goal[None]))
+                    names.append(path.stem)
+            else:
+                log.warning("held-out map %s is %s, not %s: left out", path, region.shape, (h, w))
+        else:
+            log.warning("held-out map %s not found: left out", path)
+    if not parts:
+        raise NcaQdError("the held-out set is empty (heldout.n_random=0 and no paper_map)")
+    levels = jax.tree.map(lambda *xs: jnp.concatenate(xs, 0), *parts)
+    return levels, names
+
+
+def resolve_params_file(path: str | Path) -> Path:
+    """``init_from``: a parameters file, or a run directory (its ``best.msgpack``)."""
+    p = Path(path)
+    p = p / BEST_FILE if p.is_dir() else p
+    if not p.is_file():
+        raise NcaQdError(f"init_from: {p} not found")
+    return p
+
+
+def init_from_steps(path: str | Path | None) -> int | None:
+    """Environment steps behind an ``init_from`` run directory's best parameters (its metrics:
+    the last row with the highest held-out success, as training keeps it), else None."""
+    if not path or not (Path(path) / METRICS_FILE).is_file():
+        return None
+    with open(Path(path) / METRICS_FILE) as fh:
+        rows = [r for r in csv.DictReader(fh) if r.get("heldout_success") not in (None, "")]
+    if not rows:
+        return None
+    best = max(float(r["heldout_success"]) for r in rows)
+    return int([r for r in rows if float(r["heldout_success"]) == best][-1]["env_steps"])
+
+
+class AgentRun:
+    """Config + directory -> trained agent (see module doc)."""
+
+    def __init__(self, cfg: DictConfig, run_dir: Path):
+        validate(cfg)
+        self.cfg, self.run_dir = cfg, Path(run_dir)
+        self.net = make_net(cfg.network)
+        self.trainer = Trainer(self.net, cfg)
+        self.levels, self.level_names = heldout_levels(cfg)
+        self.eval_horizon = 2 * (int(cfg.interior[0]) + 2) * (int(cfg.interior[1]) + 2)
+        self.evaluate = make_heldout_eval(self.net, self.levels, int(cfg.heldout.episodes),
+                                          self.eval_horizon)
+
+    # --- disk -------------------------------------------------------------------------------
+    def _template(self) -> dict[str, Any]:
+        return {"state": self.trainer.init(jax.random.PRNGKey(int(self.cfg.seed))),
+                "wall_seconds": np.float64(0), "best_success": np.float64(-1),
+                "best_update": np.int64(0)}
+
+    def save(self, tree: dict[str, Any], rows: list[dict[str, Any]]) -> None:
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(self.run_dir / CONFIG_FILE, OmegaConf.to_yaml(self.cfg))
+        buf = io.StringIO()
+        writer = csv.DictWriter(buf, fieldnames=COLUMNS)
+        writer.writeheader()
+        writer.writerows(rows)
+        atomic_write_text(self.run_dir / METRICS_FILE, buf.getvalue())
+        save_pytree(self.run_dir / CHECKPOINT_FILE, tree)
+
+    def load(self) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+        path = self.run_dir / CHECKPOINT_FILE
+        if not path.is_file():
+            raise NcaQdError(f"{self.run_dir}: no checkpoint to resume from ({CHECKPOINT_FILE} missing)")
+        tree = load_pytree(path, self._template())
+        upto = int(tree["state"].update)
+        rows = []
+        if (self.run_dir / METRICS_FILE).is_file():
+            with open(self.run_dir / METRICS_FILE) as fh:
+                rows = [r for r in csv.DictReader(fh) if int(r["update"]) <= upto]
+        return tree, rows
+
+    def best_params(self) -> Any:
+        path = self.run_dir / BEST_FILE
+        template = self._template()["state"].params
+        if not path.is_file():
+            raise NcaQdError(f"{self.run_dir}: no {BEST_FILE} yet (no held-out evaluation done)")
+        return load_pytree(path, template)
+
+    # --- training ---------------------------------------------------------------------------
+    def heldout(self, params, update: int) -> tuple[float, float]:
+        key = jax.random.fold_in(jax.random.PRNGKey(int(self.cfg.heldout.seed)), 1)
+        reached, lengths = jax.device_get(self.evaluate(params, key))
+        return float(np.mean(reached)), float(np.mean(lengths))
+
+    def run(self, resume: bool = False) -> dict[str, Any]:
+        """Train until ``total_env_steps`` (or ``time_limit_s``); returns the final tree."""
+        from tqdm import tqdm
+
+        cfg, tr = self.cfg, self.trainer
+        if resume:
+            tree, rows = self.load()
+        else:
+            tree, rows = self._template(), []
+            if cfg.get("init_from"):
+                params = load_pytree(resolve_params_file(cfg.init_from), tree["state"].params)
+                tree["state"] = tree["state"]._replace(params=params,
+                                                       opt_state=self.trainer.tx.init(params))
+                log.info("parameters initialised from %s", cfg.init_from)
+        state: TrainState = tree["state"]
+        spu = tr.steps_per_update
+        n_updates = -(-int(cfg.total_env_steps) // spu)
+        done = int(state.update)
+        if resume and done >= n_updates:
+            log.info("nothing to train: %d of %d updates done", done, n_updates)
+            return tree
+        log.info("maze agent: %d parameters, %d envs x %d steps per update, %d of %d updates done",
+                 n_params(state.params), tr.n_envs, tr.horizon, done, n_updates)
+        t_session = time.perf_counter()
+        wall0 = float(tree["wall_seconds"])
+        bar = tqdm(total=n_updates * spu, initial=done * spu, unit="step", unit_scale=True,
+                   disable=not cfg.progress, dynamic_ncols=True)
+        last_ckpt = done
+        try:
+            while int(state.update) < n_updates:
+                if cfg.time_limit_s is not None and time.perf_counter() - t_session > cfg.time_limit_s:
+                    log.info("time limit reached after %d updates", int(state.update))
+                    break
+                t0 = time.perf_counter()
+                state, m = tr.update(state)
+                m = jax.device_get(m)
+                dt = time.perf_counter() - t0
+                u = int(state.update)
+                row = {"update": u, "env_steps": u * spu, "steps_per_second": round(spu / dt, 1),
+                       **{k: round(float(v), 6) for k, v in m.items()},
+                       "heldout_success": "", "heldout_length": ""}
+                if u % int(cfg.heldout.every_updates) == 0 or u == n_updates:
+                    succ, length = self.heldout(state.params, u)
+                    row["heldout_success"], row["heldout_length"] = round(succ, 4), round(length, 2)
+                    if succ >= float(tree["best_success"]):
+                        tree["best_success"], tree["best_update"] = np.float64(succ), np.int64(u)
+                        save_pytree(self.run_dir / BEST_FILE, state.params)
+                    bar.set_postfix(heldout=f"{succ:.2f}", refresh=False)
+                    log.info("update %d: env steps %d, held-out success %.3f (mean length %.1f), "
+                             "train success %.3f", u, u * spu, succ, length, m["train_success"])
+                row["wall_seconds"] = round(wall0 + time.perf_counter() - t_session, 1)
+                rows.append(row)
+                bar.update(spu)
+                tree["state"] = state
+                tree["wall_seconds"] = np.float64(row["wall_seconds"])
+                if u - last_ckpt >= int(cfg.checkpoint_every):
+                    self.save(tree, rows)
+                    last_ckpt = u
+        except KeyboardInterrupt:
+            self.save(tree, rows)
+            bar.close()
+            raise
+        bar.close()
+        if not (self.run_dir / BEST_FILE).is_file():
+            succ, _ = self.heldout(state.params, int(state.update))
+            tree["best_success"], tree["best_update"] = np.float64(succ), state.update
+            save_pytree(self.run_dir / BEST_FILE, state.params)
+        self.save(tree, rows)
+        return tree
+
+    def ship(self, tree: dict[str, Any], directory: str | Path | None = None) -> Path:
+        """Write the best parameters and how they were trained as the shipped agent."""
+        rows = []
+        if (self.run_dir / METRICS_FILE).is_file():
+            with open(self.run_dir / METRICS_FILE) as fh:
+                rows = list(csv.DictReader(fh))
+        best_u = int(tree["best_update"])
+        at_best = next((r for r in rows if int(r["update"]) == best_u), None)
+        curve = [{"env_steps": int(r["env_steps"]), "heldout_success": float(r["heldout_success"])}
+                 for r in rows if r.get("heldout_success") not in (None, "")]
+        sps = [float(r["steps_per_second"]) for r in rows if r.get("steps_per_second")]
+        meta = {
+            "network": OmegaConf.to_container(self.cfg.network),
+            "n_params": n_params(self.best_params()),
+            "trained_with": "python -m experiments.train_agent",
+            "config": OmegaConf.to_container(self.cfg),
+            "env_steps": best_u * self.trainer.steps_per_update,
+            "init_from": self.cfg.get("init_from"),
+            "init_from_env_steps": init_from_steps(self.cfg.get("init_from")),
+            "updates": best_u,
+            "env_steps_run": int(tree["state"].update) * self.trainer.steps_per_update,
+            "wall_seconds": float(at_best["wall_seconds"]) if at_best else float(tree["wall_seconds"]),
+            "wall_seconds_run": float(tree["wall_seconds"]),
+            "median_steps_per_second": float(np.median(sps)) if sps else None,
+            "heldout_success": float(tree["best_success"]),
+            "heldout": {"mazes": len(self.level_names), "names": self.level_names[-1:],
+                        "episodes": int(self.cfg.heldout.episodes), "horizon": self.eval_horizon},
+            "heldout_curve": curve,
+            "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        }
+        return save_agent(self.best_params(), meta, directory)
