@@ -28,8 +28,8 @@ Policies are pluggable: a :class:`Policy` is three pure functions,
   partial view) and its memory, rule-based ones may read the layout directly. ``key`` is a fresh
   per-step key (unused keys cost nothing once jitted).
 
-Two rule-based policies are provided (:data:`POLICIES`; :func:`register_policy` adds more, e.g.
-the learned agent later): ``shortest_path`` and ``wall_follower`` (documented at their
+Two rule-based policies are provided (:data:`POLICIES`; :func:`register_policy` adds more:
+:mod:`nca_qd.agent` registers the learned agent as ``learned``): ``shortest_path`` and ``wall_follower`` (documented at their
 constructors). :func:`rollout` runs ``E`` episodes of one maze (vmapped over episodes, one
 ``lax.while_loop`` over time that stops when every episode is done); vmap it over mazes.
 """
