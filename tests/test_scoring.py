@@ -27,6 +27,8 @@ TINY_WAREHOUSE = [
     "domain.n_agents.train=10", "domain.n_agents.eval=20", "domain.simulation.T=60",
     "domain.simulation.n_runs=2", "domain.measures.ranges=[[0,1],[0,30]]",
     "domain.measures.cells=[10,10]", "qd.n_emitters=2", "qd.batch_size=3", "qd.progress=false",
+    # a window budget, not time: repairs (and so resumed runs) do not depend on the machine's load
+    "domain.repair.improve_windows=4",
 ]
 
 
