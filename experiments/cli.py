@@ -43,6 +43,15 @@ def compose_config(config_name: str, overrides: Sequence[str]) -> DictConfig:
     return cfg
 
 
+def merge_overrides(cfg: DictConfig, overrides: Sequence[str]) -> DictConfig:
+    """``cfg`` with ``key=value`` overrides merged in (a resumed run's saved config); a malformed
+    override is one clear error."""
+    try:
+        return OmegaConf.merge(cfg, OmegaConf.from_dotlist(list(overrides)))
+    except Exception as exc:  # OmegaConf's parse errors for malformed overrides
+        raise NcaQdError(f"bad override: {str(exc).splitlines()[0]}") from None
+
+
 def main_guard(body: Callable[[list[str]], int | None]) -> Callable[[], None]:
     """Run ``body(argv)``; user errors print one line to stderr and exit 2, Ctrl-C exits 130."""
 

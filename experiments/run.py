@@ -12,9 +12,7 @@ from __future__ import annotations
 import datetime
 from pathlib import Path
 
-from omegaconf import OmegaConf
-
-from experiments.cli import compose_config, main_guard
+from experiments.cli import compose_config, main_guard, merge_overrides
 from nca_qd.errors import NcaQdError
 
 RUN_DIR_KEYS = ("hydra.run.dir=", "run_dir=")
@@ -47,10 +45,7 @@ def main(argv: list[str]) -> int:
                     raise NcaQdError(f"resume directory {resume} holds a {key} {saved!r} run, "
                                      f"not {value!r}")
         extra = [a for a in rest if not a.startswith(("domain=", "algo="))]
-        try:
-            cfg = OmegaConf.merge(cfg, OmegaConf.from_dotlist(extra))
-        except Exception as exc:  # OmegaConf's parse errors for malformed overrides
-            raise NcaQdError(f"bad override: {str(exc).splitlines()[0]}") from None
+        cfg = merge_overrides(cfg, extra)
         run_path = Path(resume)
     else:
         cfg = compose_config("run", overrides)

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from omegaconf import OmegaConf
 
-from experiments.cli import compose_config, main_guard
+from experiments.cli import compose_config, main_guard, merge_overrides
 from nca_qd.errors import NcaQdError
 
 
@@ -30,10 +30,7 @@ def main(argv: list[str]) -> int:
             raise NcaQdError(f"{resume} is not an agent run directory (config.yaml missing)")
         cfg = OmegaConf.load(path)
         rest = [a for a in argv if not a.startswith("resume=")]
-        try:
-            cfg = OmegaConf.merge(cfg, OmegaConf.from_dotlist(rest))
-        except Exception as exc:  # OmegaConf's parse errors for malformed overrides
-            raise NcaQdError(f"bad override: {str(exc).splitlines()[0]}") from None
+        cfg = merge_overrides(cfg, rest)
         run_path = Path(resume)
     else:
         cfg = compose_config("train_agent", argv)
