@@ -52,6 +52,23 @@ def merge_overrides(cfg: DictConfig, overrides: Sequence[str]) -> DictConfig:
         raise NcaQdError(f"bad override: {str(exc).splitlines()[0]}") from None
 
 
+def take_domain(argv: list[str]) -> tuple[list[str], str | None]:
+    """Pull ``domain=...`` out of the overrides.
+
+    Hydra reads ``domain=`` as a choice of the config *group* ``conf/domain/`` (used by
+    run.yaml) and refuses it for configs where ``domain`` is a plain string (simulate.yaml)
+    or absent (evaluate.yaml); so the caller uses the value itself.
+    """
+    rest, domain = [], None
+    for arg in argv:
+        key, sep, value = arg.partition("=")
+        if sep and key.lstrip("+~") == "domain":
+            domain = value
+        else:
+            rest.append(arg)
+    return rest, domain
+
+
 def main_guard(body: Callable[[list[str]], int | None]) -> Callable[[], None]:
     """Run ``body(argv)``; user errors print one line to stderr and exit 2, Ctrl-C exits 130."""
 

@@ -28,15 +28,14 @@ from __future__ import annotations
 
 from omegaconf import OmegaConf
 
-from experiments.cli import compose_config, main_guard
-from experiments.simulate import _take_domain
+from experiments.cli import compose_config, main_guard, take_domain
 from nca_qd.errors import NcaQdError
 
 
 def main(argv: list[str]) -> int:
     from nca_qd.evaluation import evaluate
 
-    argv, domain = _take_domain(argv)
+    argv, domain = take_domain(argv)
     cfg = compose_config("evaluate", argv)
     if OmegaConf.is_missing(cfg, "run_dir") or not cfg.run_dir:
         raise NcaQdError("give run_dir=<run directory>")

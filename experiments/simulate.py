@@ -21,7 +21,7 @@ from typing import Callable, Iterator
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
-from experiments.cli import compose_config, main_guard
+from experiments.cli import compose_config, main_guard, take_domain
 from nca_qd.errors import NcaQdError
 from nca_qd.io import atomic_write_bytes, load_map
 from nca_qd.sim.scenario import Scenario, build_scenario, tiles_for
@@ -75,7 +75,7 @@ SIMULATORS: dict[str, Callable[[], Simulator]] = {
 
 
 def main(argv: list[str]) -> int:
-    argv, domain_override = _take_domain(argv)
+    argv, domain_override = take_domain(argv)
     cfg = compose_config("simulate", argv)
     if domain_override is not None:
         cfg.domain = domain_override
@@ -103,23 +103,6 @@ def main(argv: list[str]) -> int:
     if settings.record_paths:
         _write_paths(str(cfg.paths_out), recorded)
     return 0
-
-
-def _take_domain(argv: list[str]) -> tuple[list[str], str | None]:
-    """Pull ``domain=...`` out of the overrides.
-
-    Hydra reads ``domain=`` as a choice of the config *group* ``conf/domain/`` (used by
-    run.yaml) and refuses it for simulate.yaml, where ``domain`` is a plain string; so the
-    value is set on the composed config instead.
-    """
-    rest, domain = [], None
-    for arg in argv:
-        key, sep, value = arg.partition("=")
-        if sep and key.lstrip("+~") == "domain":
-            domain = value
-        else:
-            rest.append(arg)
-    return rest, domain
 
 
 def summarize(runs: list[dict]) -> dict:
