@@ -187,6 +187,26 @@ def test_accel_level_sampler_fills_buffer_and_keeps_levels_solvable(trained):
     assert (buf.levels.layout[:, ring] == 1).all()
 
 
+def test_min_interior_levels_are_smaller_mazes_inside_the_fixed_array():
+    from omegaconf import OmegaConf
+
+    from nca_qd.agent.levels import buffer_init, choose_levels
+
+    cfg = OmegaConf.create({"method": "dr", "density": [0.0, 0.0], "tries": 1, "min_interior": 3})
+    levels, _, _ = choose_levels(jax.random.PRNGKey(3), buffer_init(4, (10, 10)), jnp.int32(0), 64,
+                                 (8, 8), cfg)
+    lay = np.asarray(levels.layout)
+    free = lay == 0
+    rows, cols = free.any(2).sum(1), free.any(1).sum(1)  # the open region's height and width
+    assert rows.min() >= 3 and cols.min() >= 3 and rows.max() == 8 and len(set(rows)) > 2
+    for i in range(len(lay)):  # an open rectangle in the top-left corner, walls elsewhere
+        np.testing.assert_array_equal(free[i, 1:rows[i] + 1, 1:cols[i] + 1], True)
+        assert free[i].sum() == rows[i] * cols[i]
+        # start and goal: opposite corners of the open rectangle (its longest shortest path)
+        assert {tuple(levels.start[i].tolist()), tuple(levels.goal[i].tolist())} == {
+            (1, 1), (int(rows[i]), int(cols[i]))}
+
+
 # --------------------------------------------------------------------------- shipped agent
 
 OPEN_ROOM = np.pad(np.zeros((16, 16), np.int32), 1, constant_values=1)

@@ -90,6 +90,8 @@ def validate(cfg: DictConfig) -> None:
         if (sig is None or len(sig) != 2 or not all(isinstance(v, (int, float)) for v in sig)
                 or not 0 <= sig[0] <= sig[1]):
             raise NcaQdError(f"levels.nca_sigma must be [low, high] with 0 <= low <= high, got {sig!r}")
+    if OmegaConf.select(cfg, "levels.min_interior") is not None:
+        number("levels.min_interior", low=2, strict=False)
     if cfg.n_envs % cfg.ppo.minibatches:
         raise NcaQdError(f"n_envs={cfg.n_envs} is not divisible by ppo.minibatches="
                          f"{cfg.ppo.minibatches}")
