@@ -254,7 +254,8 @@ def run_main(module, argv, monkeypatch, capsys):
 
 
 @pytest.mark.parametrize("argv", [["n_envs=0"], ["levels.method=bogus"], ["bogus_key=1"],
-                                  ["n_envs=6", "ppo.minibatches=4"]])
+                                  ["n_envs=6", "ppo.minibatches=4"],
+                                  ["heldout.interior=[1,5]"], ["levels.min_interior=0"]])
 def test_train_agent_bad_input_is_one_error_line(argv, monkeypatch, capsys, tmp_path):
     code, out, err = run_main("experiments.train_agent", argv + [f"run_dir={tmp_path}"],
                               monkeypatch, capsys)

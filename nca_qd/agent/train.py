@@ -72,10 +72,13 @@ def validate(cfg: DictConfig) -> None:
         raise NcaQdError(f"seed must be an integer, got {cfg.seed!r}")
     if cfg.time_limit_s is not None:
         number("time_limit_s", float)
-    inter = cfg.interior
-    if (inter is None or len(inter) != 2
-            or not all(isinstance(v, int) and not isinstance(v, bool) and v >= 2 for v in inter)):
-        raise NcaQdError(f"interior must be two integers >= 2, got {inter!r}")
+    for name in ("interior", "heldout.interior"):
+        inter = OmegaConf.select(cfg, name)
+        if name == "heldout.interior" and inter is None:
+            continue
+        if (inter is None or len(inter) != 2 or not all(
+                isinstance(v, int) and not isinstance(v, bool) and v >= 2 for v in inter)):
+            raise NcaQdError(f"{name} must be two integers >= 2, got {inter!r}")
     if cfg.levels.method not in ("accel", "dr"):
         raise NcaQdError(f"levels.method must be accel or dr, got {cfg.levels.method!r}")
     for p in ("levels.density", "heldout.density"):
@@ -97,12 +100,19 @@ def validate(cfg: DictConfig) -> None:
                          f"{cfg.ppo.minibatches}")
 
 
+def heldout_interior(cfg: DictConfig) -> tuple[int, int]:
+    """The held-out mazes' interior: ``heldout.interior``, else the training ``interior`` (a
+    larger held-out size selects the checkpoint that generalises to large mazes best)."""
+    inter = OmegaConf.select(cfg, "heldout.interior") or cfg.interior
+    return int(inter[0]), int(inter[1])
+
+
 def heldout_levels(cfg: DictConfig) -> tuple[Levels, list[str]]:
     """The fixed held-out set: ``n_random`` random solvable mazes + the paper's map (bordered)."""
     from nca_qd.io import load_map
 
-    h, w = (int(v) for v in cfg.interior)
     hd = cfg.heldout
+    h, w = heldout_interior(cfg)
     names = [f"random_{i}" for i in range(int(hd.n_random))]
     parts = []
     if int(hd.n_random) > 0:
@@ -159,7 +169,8 @@ class AgentRun:
         self.net = make_net(cfg.network)
         self.trainer = Trainer(self.net, cfg)
         self.levels, self.level_names = heldout_levels(cfg)
-        self.eval_horizon = 2 * (int(cfg.interior[0]) + 2) * (int(cfg.interior[1]) + 2)
+        hh, hw = heldout_interior(cfg)
+        self.eval_horizon = 2 * (hh + 2) * (hw + 2)
         self.evaluate = make_heldout_eval(self.net, self.levels, int(cfg.heldout.episodes),
                                           self.eval_horizon)
 
