@@ -309,3 +309,27 @@ def test_path_picture(tmp_path):
     path = np.array([[1, 1], [1, 2], [2, 2], [3, 2]])
     draw_path(tmp_path / "p.png", OPEN_ROOM, path[0], path[-1], path, "a path")
     assert (tmp_path / "p.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_own_nca_elite_is_the_best_objective_maze_with_the_longest_path(monkeypatch):
+    import nca_qd.pipeline
+    from nca_qd.agent.transfer import longest_path_elite
+
+    room = np.zeros((6, 6), np.int32)
+    corridor = np.ones((6, 6), np.int32)
+    corridor[0, :2] = 0  # most walls, path 1
+    snake = np.ones((6, 6), np.int32)
+    snake[0, :] = snake[:, 5] = snake[5, :] = 0  # path 15
+    regions = np.stack([room, corridor, snake, room])
+    monkeypatch.setattr(nca_qd.pipeline, "generate", lambda d, g, x, which: regions[x[:, 0]])
+
+    class Domain:
+        assemble = staticmethod(lambda r: np.pad(r, ((0, 0), (1, 1), (1, 1)), constant_values=1))
+
+    archive = {"objective": np.array([1.0, 1.0, 1.0, np.nan, 0.0]),
+               "genotypes": np.array([[0], [1], [2], [0], [2]])}
+    assert longest_path_elite(Domain(), None, archive) == 2
+    archive["objective"][2] = 0.0  # the snake no longer among the best: the room's path (10) wins
+    assert longest_path_elite(Domain(), None, archive) == 0
+    assert longest_path_elite(Domain(), None, {"objective": np.full(3, np.nan),
+                                               "genotypes": np.zeros((3, 1), int)}) is None

@@ -211,27 +211,45 @@ def baseline_case(case: str, reference: np.ndarray, cfg: Mapping[str, Any], key:
     return res
 
 
+def longest_path_elite(domain, gen, archive: Mapping[str, np.ndarray]) -> int | None:
+    """Among the elites of the best objective (the maze's is binary: solvable), the one whose
+    maze at the training size has the longest start-goal shortest path (ties: more walls) -- an
+    intricate maze, the kind the paper shows, chosen without the agent. (The archive's first best
+    cell is often an empty room, and the most walls a two-tile corridor: both say nothing about
+    transfer.)"""
+    from nca_qd.pipeline import generate
+
+    objective = archive["objective"]
+    occ = np.flatnonzero(np.isfinite(objective))
+    if occ.size == 0:
+        return None
+    top = occ[objective[occ] == objective[occ].max()]
+    mazes = np.asarray(domain.assemble(generate(domain, gen, archive["genotypes"][top], "train")))
+    length = np.asarray(longest_shortest_path(jnp.asarray(mazes == ma.EMPTY))[0])
+    walls = (mazes == ma.WALL).sum(axis=(1, 2))
+    return int(top[np.lexsort((-walls, -length))[0]])
+
+
 def own_nca_layouts(run_dir: str | Path, elite: int | None) -> tuple[dict[str, np.ndarray], int]:
     """The run's chosen generator's bordered mazes at the training and evaluation sizes."""
     from nca_qd.domains import make_domain
-    from nca_qd.experiment import load_archive, load_run_config, select_elites
+    from nca_qd.experiment import load_archive, load_run_config
     from nca_qd.pipeline import generate, make_generator
 
     cfg = load_run_config(Path(run_dir))
     if cfg.domain.name not in ("maze",) and not str(cfg.domain.name).startswith("maze"):
         raise NcaQdError(f"{run_dir} is a {cfg.domain.name!r} run, not a maze run")
     archive = load_archive(run_dir, "result")
+    domain = make_domain(cfg.domain)
+    gen = make_generator(domain)
     if elite is None:
-        cells = select_elites(archive["objective"], 1)
-        if len(cells) == 0:
+        cell = longest_path_elite(domain, gen, archive)
+        if cell is None:
             raise NcaQdError(f"{run_dir}: the archive is empty")
-        cell = int(cells[0])
     else:
         cell = int(elite)
         if not (0 <= cell < archive["objective"].size) or not np.isfinite(archive["objective"][cell]):
             raise NcaQdError(f"{run_dir}: no elite in cell {cell}")
-    domain = make_domain(cfg.domain)
-    gen = make_generator(domain)
     out = {which: np.asarray(domain.assemble(generate(domain, gen, archive["genotypes"][[cell]], which)[0]))
            for which in ("train", "eval")}
     return out, cell
