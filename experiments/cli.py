@@ -8,6 +8,7 @@ Hydra traceback) and wrap their body in :func:`main_guard`.
 from __future__ import annotations
 
 import logging
+import signal
 import sys
 from pathlib import Path
 from typing import Callable, Sequence
@@ -69,13 +70,21 @@ def take_domain(argv: list[str]) -> tuple[list[str], str | None]:
     return rest, domain
 
 
+def _raise_interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
 def main_guard(body: Callable[[list[str]], int | None]) -> Callable[[], None]:
-    """Run ``body(argv)``; user errors print one line to stderr and exit 2, Ctrl-C exits 130."""
+    """Run ``body(argv)``; user errors print one line to stderr and exit 2, Ctrl-C (or
+    SIGTERM) exits 130."""
 
     def wrapped() -> None:
         logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s: %(message)s",
                             datefmt="%H:%M:%S")
         logging.getLogger("nca_qd").setLevel(logging.INFO)
+        # SIGTERM (a cluster scheduler's or a session's end, `kill`) stops a run as Ctrl-C
+        # does: the run writes its checkpoint before it exits.
+        signal.signal(signal.SIGTERM, _raise_interrupt)
         try:
             code = body(sys.argv[1:])
         except NcaQdError as exc:

@@ -121,6 +121,32 @@ def test_ctrl_c_leaves_a_resumable_checkpoint(tmp_path):
     assert [int(r["iteration"]) for r in rows] == list(range(1, done + 3))
 
 
+def test_sigterm_stops_like_ctrl_c(capsys):
+    """SIGTERM (a scheduler's or a session's end) becomes the KeyboardInterrupt that makes a run
+    write its checkpoint (the test above) and exit 130 with the resume hint."""
+    from experiments.cli import main_guard
+
+    reached = []
+
+    def body(argv):
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(10)
+        except KeyboardInterrupt:
+            reached.append("checkpoint here")
+            raise
+        return 0
+
+    old = signal.getsignal(signal.SIGTERM)
+    try:
+        with pytest.raises(SystemExit) as exc:
+            main_guard(body)()
+    finally:
+        signal.signal(signal.SIGTERM, old)
+    assert exc.value.code == 130 and reached == ["checkpoint here"]
+    assert "resume with resume=" in capsys.readouterr().err
+
+
 def test_render_draws_archive_elites(full_run, tmp_path):
     from experiments.render import render_elites
     from nca_qd.errors import NcaQdError
