@@ -140,14 +140,18 @@ def test_cli_screen_prints_runs_and_summary(tmp_path):
 def test_crowding_proxy_stops_a_packed_room_that_rhcrs_rule_lets_run():
     room = ["w.......w", ".eeeeeee.", ".........", ".eeeeeee.", "w.......w", ".eeeeeee.",
             ".........", ".eeeeeee.", "w.......w"]
-    crowded = simulate(room, "warehouse_even", 60, T, 0, record_paths=True, congestion="crowding")
+    horizon = 100  # past the first check at which the crowding rule may stop a run
+    crowded = simulate(room, "warehouse_even", 60, horizon, 0, record_paths=True,
+                       congestion="crowding")
     check_run(crowded, room)
-    assert crowded.congested and crowded.stop_time == 15  # 3 checks with >= 20 agents in 5x5
-    assert (crowded.crowding[:3] >= 20).all()
-    moved = simulate(room, "warehouse_even", 60, T, 0, record_paths=True, congestion="moved")
+    # stops at the first check allowed (the 10th, t=50): >= 17 agents in a 5x5 block on average
+    assert crowded.congested and crowded.stop_time == 5 * screen.CROWD_MIN_CHECKS
+    assert crowded.crowding[:screen.CROWD_MIN_CHECKS].mean() >= screen.CROWD_MEAN
+    moved = simulate(room, "warehouse_even", 60, horizon, 0, record_paths=True, congestion="moved")
     check_run(moved, room)
-    assert moved.success and moved.stop_time == T
-    np.testing.assert_array_equal(moved.paths[:16], crowded.paths)  # same run up to the stop
+    assert moved.success and moved.stop_time == horizon
+    stop = crowded.stop_time
+    np.testing.assert_array_equal(moved.paths[:stop + 1], crowded.paths)  # same run up to the stop
 
 
 @pytest.mark.parametrize("option, message", [({"congestion": "jam"}, "congestion rule"),
