@@ -16,6 +16,9 @@ rule alone).
 
 Speed: 50 layouts x 5 seeds x 200 agents x 1,000 steps as one vmapped batch (after
 compilation), and 101x102 with 1,400 agents x 5,000 steps (one run).
+
+Scale (``BENCH_SCREEN_PARTS=scale``, not in the default set: minutes): the human 101x102
+warehouse tiled 2x2 (202x204) with 5,600 agents x 5,000 steps.
 """
 
 from __future__ import annotations
@@ -234,8 +237,40 @@ def speed() -> None:
           f"success {r.success}, stop_time {r.stop_time}")
 
 
+def tiled(rows: list[str], ty: int, tx: int) -> list[str]:
+    """A layout repeated ``ty`` x ``tx`` times (a larger warehouse of the same pattern)."""
+    return [r * tx for r in rows] * ty
+
+
+def scale() -> None:
+    """Beyond the paper's sizes: the human 101x102 warehouse tiled (BENCH_SCREEN_TILES, default
+    2x2 -> 202x204) with BENCH_SCREEN_SCALE_AGENTS agents (default 5,600: the 101x102 density of
+    1,400) for 5,000 steps, one run, RHCR's congestion rule alone; prints the wall time."""
+    from nca_qd.sim.screen import simulate_batch
+
+    big = _load("human_101x102.json")
+    if big is None:
+        print("human_101x102.json not found, skipped")
+        return
+    ty, tx = (int(v) for v in os.environ.get("BENCH_SCREEN_TILES", "2x2").split("x"))
+    n = int(os.environ.get("BENCH_SCREEN_SCALE_AGENTS", 1400 * ty * tx))
+    steps = int(os.environ.get("BENCH_SCREEN_BIG_T", 5000))
+    rows = tiled(big, ty, tx)
+    t0 = time.perf_counter()
+    simulate_batch([rows], SCENARIO, n, 10, [0], congestion="moved")
+    comp = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    r = simulate_batch([rows], SCENARIO, n, steps, [0], congestion="moved")[0][0]
+    wall = time.perf_counter() - t0
+    print(f"== scale: {len(rows)}x{len(rows[0])} ({ty}x{tx} human 101x102), {n} agents x {steps} "
+          f"steps: {wall:.1f} s wall after compilation (compile+10 steps {comp:.1f} s); "
+          f"throughput {r.throughput:.3f}, success {r.success}, stop_time {r.stop_time}")
+
+
 def main() -> None:
     parts = os.environ.get("BENCH_SCREEN_PARTS", "fidelity,speed").split(",")
+    if "scale" in parts:
+        scale()
     if "speed" in parts:
         speed()
     if "fidelity" in parts:
