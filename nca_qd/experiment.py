@@ -251,7 +251,7 @@ def load_run_config(run_dir: Path) -> DictConfig:
     """The saved configuration of a run directory (for ``resume=``)."""
     path = Path(run_dir) / CONFIG_FILE
     if not Path(run_dir).is_dir():
-        raise NcaQdError(f"resume directory {run_dir} does not exist")
+        raise NcaQdError(f"run directory {run_dir} does not exist")
     if not path.is_file():
         raise NcaQdError(f"{run_dir} is not a run directory ({CONFIG_FILE} missing)")
     return OmegaConf.load(path)  # type: ignore[return-value]
