@@ -329,6 +329,7 @@ def test_own_nca_elite_is_the_best_objective_maze_with_the_longest_path(monkeypa
     archive = {"objective": np.array([1.0, 1.0, 1.0, np.nan, 0.0]),
                "genotypes": np.array([[0], [1], [2], [0], [2]])}
     assert longest_path_elite(Domain(), None, archive) == 2
+    assert longest_path_elite(Domain(), None, archive, chunk=2) == 2  # across chunks
     archive["objective"][2] = 0.0  # the snake no longer among the best: the room's path (10) wins
     assert longest_path_elite(Domain(), None, archive) == 0
     assert longest_path_elite(Domain(), None, {"objective": np.full(3, np.nan),

@@ -211,7 +211,8 @@ def baseline_case(case: str, reference: np.ndarray, cfg: Mapping[str, Any], key:
     return res
 
 
-def longest_path_elite(domain, gen, archive: Mapping[str, np.ndarray]) -> int | None:
+def longest_path_elite(domain, gen, archive: Mapping[str, np.ndarray],
+                       chunk: int = 1024) -> int | None:
     """Among the elites of the best objective (the maze's is binary: solvable), the one whose
     maze at the training size has the longest start-goal shortest path (ties: more walls) -- an
     intricate maze, the kind the paper shows, chosen without the agent. (The archive's first best
@@ -224,10 +225,13 @@ def longest_path_elite(domain, gen, archive: Mapping[str, np.ndarray]) -> int | 
     if occ.size == 0:
         return None
     top = occ[objective[occ] == objective[occ].max()]
-    mazes = np.asarray(domain.assemble(generate(domain, gen, archive["genotypes"][top], "train")))
-    length = np.asarray(longest_shortest_path(jnp.asarray(mazes == ma.EMPTY))[0])
-    walls = (mazes == ma.WALL).sum(axis=(1, 2))
-    return int(top[np.lexsort((-walls, -length))[0]])
+    length, walls = [], []
+    for i in range(0, top.size, chunk):  # a full maze archive holds ~10^4 best elites
+        mazes = np.asarray(domain.assemble(
+            generate(domain, gen, archive["genotypes"][top[i:i + chunk]], "train")))
+        length.append(np.asarray(longest_shortest_path(jnp.asarray(mazes == ma.EMPTY))[0]))
+        walls.append((mazes == ma.WALL).sum(axis=(1, 2)))
+    return int(top[np.lexsort((-np.concatenate(walls), -np.concatenate(length)))[0]])
 
 
 def own_nca_layouts(run_dir: str | Path, elite: int | None) -> tuple[dict[str, np.ndarray], int]:
