@@ -205,6 +205,19 @@ def fidelity() -> None:
                           "screen_success_rate": round(float(sc_ok.mean()), 3)}))
 
 
+def _one_big_run(rows: list[str], n: int, steps: int):
+    """One run with RHCR's congestion rule alone: (seconds to compile + 10 steps, seconds for
+    ``steps`` steps, its result)."""
+    from nca_qd.sim.screen import simulate_batch
+
+    t0 = time.perf_counter()
+    simulate_batch([rows], SCENARIO, n, 10, [0], congestion="moved")
+    comp = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    r = simulate_batch([rows], SCENARIO, n, steps, [0], congestion="moved")[0][0]
+    return comp, time.perf_counter() - t0, r
+
+
 def speed() -> None:
     from nca_qd.sim.screen import simulate_batch
 
@@ -225,12 +238,7 @@ def speed() -> None:
         print("human_101x102.json not found, skipped")
         return
     n, steps = 1400, int(os.environ.get("BENCH_SCREEN_BIG_T", 5000))
-    t0 = time.perf_counter()
-    simulate_batch([big], SCENARIO, n, 10, [0], congestion="moved")
-    comp = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    r = simulate_batch([big], SCENARIO, n, steps, [0], congestion="moved")[0][0]
-    wall = time.perf_counter() - t0
+    comp, wall, r = _one_big_run(big, n, steps)
     print(f"101x102, {n} agents x {steps} steps: {wall:.1f} s wall after compilation "
           f"(distance table included; compile+10 steps {comp:.1f} s); "
           f"throughput {r.throughput:.3f}, "
@@ -246,8 +254,6 @@ def scale() -> None:
     """Beyond the paper's sizes: the human 101x102 warehouse tiled (BENCH_SCREEN_TILES, default
     2x2 -> 202x204) with BENCH_SCREEN_SCALE_AGENTS agents (default 5,600: the 101x102 density of
     1,400) for 5,000 steps, one run, RHCR's congestion rule alone; prints the wall time."""
-    from nca_qd.sim.screen import simulate_batch
-
     big = _load("human_101x102.json")
     if big is None:
         print("human_101x102.json not found, skipped")
@@ -256,12 +262,7 @@ def scale() -> None:
     n = int(os.environ.get("BENCH_SCREEN_SCALE_AGENTS", 1400 * ty * tx))
     steps = int(os.environ.get("BENCH_SCREEN_BIG_T", 5000))
     rows = tiled(big, ty, tx)
-    t0 = time.perf_counter()
-    simulate_batch([rows], SCENARIO, n, 10, [0], congestion="moved")
-    comp = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    r = simulate_batch([rows], SCENARIO, n, steps, [0], congestion="moved")[0][0]
-    wall = time.perf_counter() - t0
+    comp, wall, r = _one_big_run(rows, n, steps)
     print(f"== scale: {len(rows)}x{len(rows[0])} ({ty}x{tx} human 101x102), {n} agents x {steps} "
           f"steps: {wall:.1f} s wall after compilation (compile+10 steps {comp:.1f} s); "
           f"throughput {r.throughput:.3f}, success {r.success}, stop_time {r.stop_time}")
