@@ -7,7 +7,8 @@ A run directory holds
   ``best_objective``; the optimisation archive's as ``opt_*``; ``evaluations``, ``wall_seconds``);
 * ``checkpoint.msgpack``: the whole QD state (archives, emitters, key, counters), written
   atomically every ``qd.checkpoint_every`` iterations, at the end and on Ctrl-C;
-* ``archive_result.npz`` / ``archive_opt.npz``: plain arrays of both archives;
+* ``archive_result.npz`` / ``archive_opt.npz``: plain arrays of both archives, written at the
+  end (:func:`load_archive` reads a running run's checkpoint instead);
 * pictures: ``archive_result.png``, ``archive_opt.png``, ``curves.png``, ``best_train.png`` and
   ``best_eval.png`` (the same generators at the training and the evaluation size) and, for
   domains with repair, ``best_train_repaired.png`` / ``best_eval_repaired.png``.
@@ -258,9 +259,43 @@ def load_run_config(run_dir: Path) -> DictConfig:
 
 
 def load_archive(run_dir: str | Path, which: str = "result") -> dict[str, Any]:
-    """A run's archive as numpy arrays (genotypes, objective, measures, centroids, ...)."""
+    """A run's archive as numpy arrays (genotypes, objective, measures, centroids, ...).
+
+    A finished run has ``archive_<which>.npz``; a run still in progress (or interrupted) has
+    only its checkpoint, whose archive is read instead — so a long search can be evaluated,
+    rendered or explored while it goes on, without stopping it."""
     path = Path(run_dir) / f"archive_{which}.npz"
-    if not path.is_file():
-        raise NcaQdError(f"{path} not found (has the run written its outputs yet?)")
-    with np.load(path) as data:
-        return {k: data[k] for k in data.files}
+    if path.is_file():
+        with np.load(path) as data:
+            return {k: data[k] for k in data.files}
+    ckpt = Path(run_dir) / CHECKPOINT_FILE
+    if not ckpt.is_file():
+        raise NcaQdError(f"{path} not found and no {CHECKPOINT_FILE} beside it "
+                         "(has the run finished an iteration yet?)")
+    archive, iteration = archive_from_checkpoint(ckpt, which)
+    log.info("%s: no %s yet; using the archive of its checkpoint (iteration %d)",
+             run_dir, path.name, iteration)
+    return archive
+
+
+def archive_from_checkpoint(path: str | Path, which: str = "result") -> tuple[dict[str, Any], int]:
+    """The ``which`` archive of a checkpoint as :func:`archive_arrays` gives it, and the
+    checkpoint's iteration. Read without a template (no emitter or loop is built): the
+    checkpoint is plain msgpack of the state's fields."""
+    from flax import serialization
+
+    try:
+        tree = serialization.msgpack_restore(Path(path).read_bytes())
+        state = tree["state"]
+        arch = state[{"result": "res_archive", "opt": "opt_archive"}[which]]
+        out = {
+            "genotypes": np.asarray(arch["genotypes"]),
+            "objective": np.asarray(arch["fitnesses"])[:, 0],
+            "measures": np.asarray(arch["descriptors"]),
+            "centroids": np.asarray(arch["centroids"]),
+        }
+        if "thresholds" in arch and np.ndim(arch["thresholds"]) == 1:
+            out["thresholds"] = np.asarray(arch["thresholds"])
+        return out, int(np.asarray(state["iteration"]))
+    except (ValueError, KeyError, TypeError, IndexError) as exc:
+        raise NcaQdError(f"{path}: not a readable checkpoint ({exc})") from None

@@ -71,6 +71,32 @@ def test_resume_continues_and_ends_where_an_uninterrupted_run_ends(full_run, tmp
                                   np.asarray(reference.opt_archive.thresholds))
 
 
+def test_a_run_in_progress_is_read_from_its_checkpoint(full_run, tmp_path):
+    """Before archive_*.npz exist (a long run still going), load_archive reads the checkpoint's
+    archive: the same arrays the finished run writes; a damaged checkpoint is one clear error."""
+    import shutil
+
+    from nca_qd.errors import NcaQdError
+    from nca_qd.experiment import load_archive
+
+    run_dir, _, _ = full_run
+    live = tmp_path / "live"
+    live.mkdir()
+    for name in ("config.yaml", "checkpoint.msgpack"):
+        shutil.copy(run_dir / name, live / name)
+    for which in ("result", "opt"):
+        got, want = load_archive(live, which), load_archive(run_dir, which)
+        assert sorted(got) == sorted(want)
+        for k in want:
+            np.testing.assert_array_equal(got[k], want[k], err_msg=f"{which}/{k}")
+    (live / "checkpoint.msgpack").write_bytes(b"not msgpack")
+    with pytest.raises(NcaQdError, match="not a readable checkpoint"):
+        load_archive(live)
+    (live / "checkpoint.msgpack").unlink()
+    with pytest.raises(NcaQdError, match="no checkpoint.msgpack"):
+        load_archive(live)
+
+
 def _cli(*args, timeout=300):
     env = {**os.environ, "JAX_PLATFORMS": "cpu"}
     return subprocess.run([sys.executable, "-m", "experiments.run", *args], cwd=REPO,
