@@ -186,6 +186,53 @@ def test_batch_scores_match_independent_recomputation(tiny_scorer):
     assert m["n_exact"] == int(np.sum(~np.isnan(ex["exact"]))) and m["exact_runs"] == 2 * m["n_exact"]
 
 
+def test_empty_cells_skip_the_screen(tiny_scorer):
+    """A layout whose result cell is empty goes exact whatever the screen says, so (with no
+    random check share) it is not screened; occupied cells are screened; screen_empty_cells
+    screens every layout."""
+    import dataclasses
+
+    import jax
+
+    from nca_qd.scoring.mapf import ScoringContext
+
+    _, domain, gen, scorer = tiny_scorer
+    saved = scorer.cfg
+    scorer.cfg = dataclasses.replace(saved, exact_random_share=0.0)
+    try:
+        regions = _regions(domain, gen, 4, seed=1)
+        probe = scorer(regions, jax.random.PRNGKey(7))   # no context: every cell empty
+        empty = np.asarray(probe.measures)[:, 0] < np.median(np.asarray(probe.measures)[:, 0])
+        ctx = ScoringContext(result_elite=lambda m: np.where(
+            np.asarray(m)[:, 0] < np.median(np.asarray(probe.measures)[:, 0]), -np.inf, 1e9))
+        ev = scorer(regions, jax.random.PRNGKey(7), ctx)
+    finally:
+        scorer.cfg = saved
+    assert empty.any() and (~empty).any()
+    ex = ev.extras
+    assert np.isfinite(probe.extras["exact"]).all()
+    assert np.isnan(probe.extras["screened"]).all()
+    assert np.isfinite(ex["exact"][empty]).all()              # empty cells: exact
+    assert np.isfinite(ex["screened"][~empty]).all()          # occupied: screened ...
+    assert np.isnan(ex["exact"][~empty]).all()                # ... and unbeatable: no exact
+    assert np.isnan(ex["screened"][empty]).all()
+    assert ev.valid.all() and (ev.result_valid == empty).all()
+    # Which layouts the screen gets under the other settings (no simulation needed).
+    valid = np.array([True, True, True, False])
+    elite = np.array([-np.inf, 1.0, -np.inf, 1.0])
+    rng = np.random.default_rng(0)
+    for cfg, want in [(dict(exact_random_share=0.0), [False, True, False, False]),
+                      (dict(exact_random_share=1.0), [True, True, True, False]),
+                      (dict(screen_empty_cells=True), [True, True, True, False]),
+                      (dict(exact="all"), [True, True, True, False]),
+                      (dict(screen=False, exact="all"), [False, False, False, False])]:
+        scorer.cfg = dataclasses.replace(saved, **cfg)
+        try:
+            assert scorer._to_screen(valid, elite, rng).tolist() == want, cfg
+        finally:
+            scorer.cfg = saved
+
+
 def test_a_failed_repair_is_recorded_and_the_batch_goes_on(tiny_scorer):
     import jax
 

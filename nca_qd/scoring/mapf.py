@@ -5,8 +5,12 @@ Per batch (paper §4 with the design's screening step):
 1. **Repair** every generated layout (HiGHS, in parallel on the evaluation backend). A layout
    whose repair finds nothing, or fails, is recorded as invalid: lowest objective, not inserted.
 2. **Measures** of the repaired layouts (the domain's, e.g. entropy and shelf components).
-3. **Screen** every repaired layout with the JAX simulator, all layouts x N_e seeds as one
-   vmapped batch (:mod:`nca_qd.sim.screen`).
+3. **Screen** the repaired layouts with the JAX simulator, all of them x N_e seeds as one
+   vmapped batch (:mod:`nca_qd.sim.screen`) — except those whose result-archive cell is
+   still empty: they get exact runs whatever the screen says, so screening them would only
+   measure the screen; a random ``exact_random_share`` of them is screened for that
+   (``screen_empty_cells: true`` screens them all). Early in a search most cells are empty
+   and this saves most of the screen's time.
 4. **Exact RHCR** (parallel, on the backend) for the layouts whose screened throughput, scaled
    by ``screen_scale`` (the screen is pessimistic), could place them in the result archive:
    their cell is empty, or ``scaled * (1 + exact_margin) >= `` the cell's elite; plus a random
@@ -60,6 +64,7 @@ class ScoringConfig:
     exact_margin: float = 0.1
     exact_random_share: float = 0.1
     exact_time_limit_s: float | None = None
+    screen_empty_cells: bool = False
 
     @classmethod
     def from_cfg(cls, cfg: Mapping[str, Any] | None) -> "ScoringConfig":
@@ -73,7 +78,8 @@ class ScoringConfig:
                   exact_margin=float(cfg.get("exact_margin", 0.1)),
                   exact_random_share=float(cfg.get("exact_random_share", 0.1)),
                   exact_time_limit_s=(None if cfg.get("exact_time_limit_s") is None
-                                      else float(cfg["exact_time_limit_s"])))
+                                      else float(cfg["exact_time_limit_s"])),
+                  screen_empty_cells=bool(cfg.get("screen_empty_cells", False)))
         if not 0.0 <= out.exact_random_share <= 1.0:
             raise NcaQdError(f"eval.exact_random_share must be in [0, 1], got {out.exact_random_share}")
         if out.screen_scale <= 0:
@@ -154,6 +160,18 @@ class MapfScorer:
                 log.warning("exact run failed: %s", err)
         return tp.mean(axis=1)
 
+    def _to_screen(self, valid: np.ndarray, elite: np.ndarray,
+                   rng: np.random.Generator) -> np.ndarray:
+        """Which valid layouts the screen runs on: all of them, or (by default) those whose
+        result cell holds an elite plus a random share of the rest (exact runs follow for
+        every empty cell anyway; the share keeps measuring the screen's error there)."""
+        if not self.cfg.screen:
+            return np.zeros_like(valid)
+        if self.cfg.exact == "all" or self.cfg.screen_empty_cells:
+            return valid.copy()
+        sample = rng.random(valid.shape) < self.cfg.exact_random_share
+        return valid & (np.isfinite(elite) | sample)
+
     # ------------------------------------------------------------------------------ batch
     def __call__(self, regions, key, context: ScoringContext | None = None) -> EvalBatch:
         regions = np.asarray(regions)
@@ -178,15 +196,18 @@ class MapfScorer:
         idx = np.flatnonzero(ok)
         rows = [array_to_rows(fixed[i], tiles) for i in idx]
 
-        t2 = time.perf_counter()
-        screened = np.full(b, np.nan)
-        if self.cfg.screen and idx.size:
-            screened[idx] = self.screen(rows, seeds)
-        t_scr = time.perf_counter() - t2
-        ok &= ~(self.cfg.screen & np.isnan(screened))
-        predicted = screened * self.cfg.screen_scale
         elite = (np.asarray(context.result_elite(measures)) if context is not None
                  else np.full(b, -np.inf))
+        to_screen = self._to_screen(ok, elite, rng)
+        t2 = time.perf_counter()
+        screened = np.full(b, np.nan)
+        sel = np.flatnonzero(to_screen)
+        if sel.size:
+            pos = {int(i): j for j, i in enumerate(idx)}
+            screened[sel] = self.screen([rows[pos[int(i)]] for i in sel], seeds)
+        t_scr = time.perf_counter() - t2
+        ok &= ~(to_screen & np.isnan(screened))
+        predicted = screened * self.cfg.screen_scale
         run_exact = choose_exact(np.nan_to_num(predicted, nan=-np.inf), elite, ok, self.cfg, rng)
 
         t3 = time.perf_counter()
