@@ -108,6 +108,7 @@ def test_congestion_stops_a_jammed_run():
     (["w.e.x..w"], "warehouse_even", 2, 10, "x"),
     (WAREHOUSE, "warehouse_even", 0, 10, "at least one agent"),
     (WAREHOUSE, "warehouse_even", 5, 0, "horizon"),
+    (WAREHOUSE, "warehouse_even", 50_000, 10, "at most 46340 agents"),
     ([WAREHOUSE, WAREHOUSE[:-1]], "warehouse_even", 5, 10, "one shape"),
 ])
 def test_bad_input_errors_before_compilation(monkeypatch, rows, scenario, agents, horizon, message):
@@ -161,3 +162,17 @@ def test_bad_options_error_before_compilation(monkeypatch, option, message):
     monkeypatch.setattr(screen, "_batched", lambda *a, **k: pytest.fail("compiled"))
     with pytest.raises(NcaQdError, match=message):
         simulate_batch([WAREHOUSE], "warehouse_even", 5, 10, [0], **option)
+
+
+def test_goals_drawn_in_small_rounds_equal_one_round(monkeypatch):
+    """draw_done draws the new goals of the agents that finished one in rounds of DRAW_ROUND;
+    rounds of one agent (many rounds per step) must give exactly the same run."""
+    one = simulate(WAREHOUSE, "warehouse_even", N, T, 5, record_paths=True)
+    monkeypatch.setattr(screen, "DRAW_ROUND", 1)
+    monkeypatch.setattr(screen, "_COMPILED", {})
+    monkeypatch.setattr(screen, "_EXECUTABLES", {})
+    small = simulate(WAREHOUSE, "warehouse_even", N, T, 5, record_paths=True)
+    assert one.tasks_per_step.max() >= 2  # some step needed several rounds
+    np.testing.assert_array_equal(one.paths, small.paths)
+    np.testing.assert_array_equal(one.tasks_per_step, small.tasks_per_step)
+    check_run(small, WAREHOUSE)
