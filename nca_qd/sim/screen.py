@@ -30,7 +30,7 @@ rule alone it almost never congests where windowed PBS collapses (e.g. the human
 warehouse), Spearman 0.38; with the crowding proxy Spearman 0.76 and 81 % agreement on
 congestion per run, 85 % per layout (it is still too pessimistic on random-aisle layouts). At
 101x102 with 1,000 and 1,400 agents (8 layouts x 2 seeds, exact RHCR at T=1,000) the same
-rule agreed with RHCR on 28 of 32 runs. Its throughput is ~25 % below
+rule agreed with RHCR on 28 of 32 runs (measured before the order became sort-free). Its throughput is ~25 % below
 RHCR's where RHCR runs freely (no lookahead). Rank layouts with it; do not take its
 success/failure verdict as RHCR's.
 
