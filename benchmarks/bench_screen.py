@@ -19,6 +19,12 @@ compilation), and 101x102 with 1,400 agents x 5,000 steps (one run).
 
 Scale (``BENCH_SCREEN_PARTS=scale``, not in the default set: minutes): the human 101x102
 warehouse tiled 2x2 (202x204) with 5,600 agents x 5,000 steps.
+
+Fidelity at a large size (``BENCH_SCREEN_PARTS=fidelity_large``, not in the default set: about
+2 CPU-hours at 101x102): every layout JSON of ``BENCH_SCREEN_LAYOUTS`` (a directory, e.g. an
+evaluation's ``layouts/``; ``*_unrepaired.json`` skipped) with ``BENCH_SCREEN_LARGE_AGENTS``
+agents (default 1000,1400), seeds 0 and 1, T=1,000: exact RHCR (threads: all CPUs; cached in
+``BENCH_SCREEN_RHCR_CACHE`` if set) against the screen's default congestion rule, run by run.
 """
 
 from __future__ import annotations
@@ -268,6 +274,46 @@ def scale() -> None:
           f"throughput {r.throughput:.3f}, success {r.success}, stop_time {r.stop_time}")
 
 
+def fidelity_large() -> None:
+    from nca_qd.sim.rhcr import simulate_many
+    from nca_qd.sim.screen import simulate_batch
+
+    folder = os.environ.get("BENCH_SCREEN_LAYOUTS")
+    if not folder or not Path(folder).is_dir():
+        print("fidelity_large: set BENCH_SCREEN_LAYOUTS to a directory of layout JSON files")
+        return
+    files = sorted(f for f in Path(folder).glob("*.json") if not f.stem.endswith("_unrepaired"))
+    layouts = [(f.stem, load_map(f).rows) for f in files]
+    shapes = {(len(r), len(r[0])) for _, r in layouts}
+    if len(shapes) != 1:
+        print(f"fidelity_large: the layouts must share one size, got {sorted(shapes)}")
+        return
+    agents = [int(a) for a in os.environ.get("BENCH_SCREEN_LARGE_AGENTS", "1000,1400").split(",")]
+    seeds, steps = [0, 1], 1000
+    cache = os.environ.get("BENCH_SCREEN_RHCR_CACHE")
+    done = json.loads(Path(cache).read_text()) if cache and Path(cache).is_file() else {}
+    (h, w), = shapes
+    print(f"== fidelity at {h}x{w}: {len(layouts)} layouts x {agents} agents x seeds {seeds}, "
+          f"T={steps}")
+    agree = []
+    for n in agents:
+        screened = simulate_batch([r for _, r in layouts], SCENARIO, n, steps, seeds)
+        for (name, rows), sc in zip(layouts, screened):
+            key = f"{name}|{h}x{w}|{n}|{steps}"
+            if key not in done:
+                done[key] = [[r.throughput, r.success, r.stop_time]
+                             for r in simulate_many(rows, SCENARIO, n, steps, seeds)]
+                if cache:
+                    Path(cache).write_text(json.dumps(done))
+            for (tp, ok, stop), r in zip(done[key], sc):
+                agree.append(bool(ok) == bool(r.success))
+                print(f"  {name:28s} {n:5d} agents  rhcr {'ok ' if ok else 'CON'} stop {stop:5d} "
+                      f"tp {tp:6.2f} | screen {'ok ' if r.success else 'CON'} stop "
+                      f"{r.stop_time:5d} tp {r.throughput:6.2f}")
+    print(json.dumps({"size": f"{h}x{w}", "runs": len(agree),
+                      "congestion_agreement_per_run": round(float(np.mean(agree)), 3)}))
+
+
 def main() -> None:
     parts = os.environ.get("BENCH_SCREEN_PARTS", "fidelity,speed").split(",")
     if "scale" in parts:
@@ -276,6 +322,8 @@ def main() -> None:
         speed()
     if "fidelity" in parts:
         fidelity()
+    if "fidelity_large" in parts:
+        fidelity_large()
 
 
 if __name__ == "__main__":
