@@ -121,6 +121,11 @@ def test_scoring_config_rejects_bad_values():
     with pytest.raises(NcaQdError, match="exact_random_share"):
         ScoringConfig.from_cfg({"exact_random_share": 2})
     assert ScoringConfig.from_cfg({"screen": False}).exact == "all"
+    with pytest.raises(NcaQdError, match="eval.screen_empty_cells must be true or false"):
+        ScoringConfig.from_cfg({"screen_empty_cells": "maybe"})
+    with pytest.raises(NcaQdError, match="eval.screen must be true or false"):
+        ScoringConfig.from_cfg({"screen": 3})
+    assert ScoringConfig.from_cfg({"screen_empty_cells": True}).screen_empty_cells
 
 
 # ------------------------------------------------------------------------------ one batch

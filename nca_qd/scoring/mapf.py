@@ -72,6 +72,9 @@ class ScoringConfig:
         exact = str(cfg.get("exact", "selective"))
         if exact not in EXACT_POLICIES:
             raise NcaQdError(f"eval.exact must be one of {', '.join(EXACT_POLICIES)}, got {exact!r}")
+        for name in ("screen", "screen_empty_cells"):
+            if name in cfg and not isinstance(cfg[name], bool):
+                raise NcaQdError(f"eval.{name} must be true or false, got {cfg[name]!r}")
         screen = bool(cfg.get("screen", True))
         out = cls(screen=screen, exact=exact if screen else "all",
                   screen_scale=float(cfg.get("screen_scale", 1.3)),
