@@ -115,6 +115,13 @@ def test_choose_exact_takes_empty_cells_and_likely_improvements_only():
     assert 0.45 < picked.mean() < 0.55
 
 
+def test_screen_batches_are_padded_to_powers_of_two():
+    from nca_qd.scoring.mapf import screen_bucket
+
+    assert [screen_bucket(n) for n in (1, 2, 3, 4, 5, 8, 9, 33, 50)] == [1, 2, 4, 4, 8, 8, 16, 64, 64]
+    assert [screen_bucket(n, cap=50) for n in (5, 33, 50)] == [8, 50, 50]
+
+
 def test_scoring_config_rejects_bad_values():
     with pytest.raises(NcaQdError, match="eval.exact must be one of"):
         ScoringConfig.from_cfg({"exact": "sometimes"})

@@ -101,6 +101,13 @@ def choose_exact(predicted: np.ndarray, elite: np.ndarray, valid: np.ndarray, cf
     return valid & (could | check)
 
 
+def screen_bucket(n: int, cap: int | None = None) -> int:
+    """The batch size a screen of ``n`` layouts is padded to: the next power of two, at most
+    ``cap`` (the QD batch size: a full batch is not padded)."""
+    size = 1 << max(0, int(n) - 1).bit_length()
+    return max(int(n), min(size, cap)) if cap is not None else size
+
+
 class MapfScorer:
     """The evaluator of a multi-agent domain: ``scorer(regions, key, context) -> EvalBatch``."""
 
@@ -132,7 +139,8 @@ class MapfScorer:
         return [o if isinstance(o, RepairOutcome)
                 else RepairOutcome(None, "error", 0.0, None, 0.0, o.error) for o in out]
 
-    def screen(self, rows: list[list[str]], seeds: list[int]) -> np.ndarray:
+    def screen(self, rows: list[list[str]], seeds: list[int],
+               cap: int | None = None) -> np.ndarray:
         """Mean screened throughput per layout ``[n]`` (NaN where the screen failed)."""
         from nca_qd.sim.scenario import build_scenario
         from nca_qd.sim.screen import simulate_scenarios
@@ -146,7 +154,12 @@ class MapfScorer:
             except NcaQdError as exc:
                 log.warning("screen: layout %d rejected: %s", i, exc)
         if scens:
-            res = simulate_scenarios(scens, self.n_agents, self.T, seeds)
+            # The number of screened layouts varies per batch (see _to_screen); padding it to
+            # a power of two (repeating the last layout) bounds the compiled batch shapes to
+            # a handful instead of one compilation per new count.
+            n = len(scens)
+            padded = scens + [scens[-1]] * (screen_bucket(n, cap) - n)
+            res = simulate_scenarios(padded, self.n_agents, self.T, seeds)[:n]
             out[keep] = [np.mean([r.throughput for r in row]) for row in res]
         return out
 
@@ -207,7 +220,7 @@ class MapfScorer:
         sel = np.flatnonzero(to_screen)
         if sel.size:
             pos = {int(i): j for j, i in enumerate(idx)}
-            screened[sel] = self.screen([rows[pos[int(i)]] for i in sel], seeds)
+            screened[sel] = self.screen([rows[pos[int(i)]] for i in sel], seeds, cap=b)
         t_scr = time.perf_counter() - t2
         ok &= ~(to_screen & np.isnan(screened))
         predicted = screened * self.cfg.screen_scale
