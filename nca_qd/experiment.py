@@ -34,7 +34,8 @@ from nca_qd.domains import Domain, make_domain
 from nca_qd.errors import NcaQdError
 from nca_qd.io import atomic_write_text, load_pytree, save_npz, save_pytree
 from nca_qd.pipeline import generate, make_generator, make_objective
-from nca_qd.qd.loop import QDLoop, QDState, archive_arrays, archive_spec, make_emitter
+from nca_qd.qd.loop import (QDLoop, QDState, archive_arrays, archive_fields_to_arrays,
+                            archive_spec, make_emitter)
 
 log = logging.getLogger("nca_qd.run")
 
@@ -288,14 +289,6 @@ def archive_from_checkpoint(path: str | Path, which: str = "result") -> tuple[di
         tree = serialization.msgpack_restore(Path(path).read_bytes())
         state = tree["state"]
         arch = state[{"result": "res_archive", "opt": "opt_archive"}[which]]
-        out = {
-            "genotypes": np.asarray(arch["genotypes"]),
-            "objective": np.asarray(arch["fitnesses"])[:, 0],
-            "measures": np.asarray(arch["descriptors"]),
-            "centroids": np.asarray(arch["centroids"]),
-        }
-        if "thresholds" in arch and np.ndim(arch["thresholds"]) == 1:
-            out["thresholds"] = np.asarray(arch["thresholds"])
-        return out, int(np.asarray(state["iteration"]))
+        return archive_fields_to_arrays(arch), int(np.asarray(state["iteration"]))
     except (ValueError, KeyError, TypeError, IndexError) as exc:
         raise NcaQdError(f"{path}: not a readable checkpoint ({exc})") from None

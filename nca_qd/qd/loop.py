@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import chex
 import flax.struct
@@ -167,12 +167,22 @@ def archive_spec(algo_name: str, domain_cfg: Any, qd_cfg: Any) -> ArchiveSpec:
 
 def archive_arrays(archive: MapElitesRepertoire) -> dict[str, np.ndarray]:
     """Plain numpy arrays of an archive (for ``.npz`` files and notebooks)."""
-    out = {
-        "genotypes": np.asarray(archive.genotypes),
-        "objective": np.asarray(archive.fitnesses[:, 0]),
-        "measures": np.asarray(archive.descriptors),
-        "centroids": np.asarray(archive.centroids),
-    }
+    fields = {"genotypes": archive.genotypes, "fitnesses": archive.fitnesses,
+              "descriptors": archive.descriptors, "centroids": archive.centroids}
     if isinstance(archive, ThresholdRepertoire):
-        out["thresholds"] = np.asarray(archive.thresholds)
+        fields["thresholds"] = archive.thresholds
+    return archive_fields_to_arrays(fields)
+
+
+def archive_fields_to_arrays(fields: Mapping[str, Any]) -> dict[str, np.ndarray]:
+    """:func:`archive_arrays` from a repertoire's fields by name (e.g. a checkpoint read as
+    plain msgpack): genotypes, objective, measures, centroids and, if present, thresholds."""
+    out = {
+        "genotypes": np.asarray(fields["genotypes"]),
+        "objective": np.asarray(fields["fitnesses"])[:, 0],
+        "measures": np.asarray(fields["descriptors"]),
+        "centroids": np.asarray(fields["centroids"]),
+    }
+    if "thresholds" in fields and np.ndim(fields["thresholds"]) == 1:
+        out["thresholds"] = np.asarray(fields["thresholds"])
     return out

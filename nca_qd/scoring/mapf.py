@@ -211,6 +211,7 @@ class MapfScorer:
         delta = np.array([r.similarity for r in repaired])
         idx = np.flatnonzero(ok)
         rows = [array_to_rows(fixed[i], tiles) for i in idx]
+        pos = {int(i): j for j, i in enumerate(idx)}   # batch index -> its row in rows
 
         elite = (np.asarray(context.result_elite(measures)) if context is not None
                  else np.full(b, -np.inf))
@@ -219,7 +220,6 @@ class MapfScorer:
         screened = np.full(b, np.nan)
         sel = np.flatnonzero(to_screen)
         if sel.size:
-            pos = {int(i): j for j, i in enumerate(idx)}
             screened[sel] = self.screen([rows[pos[int(i)]] for i in sel], seeds, cap=b)
         t_scr = time.perf_counter() - t2
         ok &= ~(to_screen & np.isnan(screened))
@@ -230,7 +230,6 @@ class MapfScorer:
         exact = np.full(b, np.nan)
         chosen = np.flatnonzero(run_exact)
         if chosen.size:
-            pos = {int(i): j for j, i in enumerate(idx)}
             exact[chosen] = self.exact([rows[pos[int(i)]] for i in chosen], seeds)
         t_ex = time.perf_counter() - t3
         has_exact = ~np.isnan(exact)
