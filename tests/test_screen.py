@@ -176,3 +176,21 @@ def test_goals_drawn_in_small_rounds_equal_one_round(monkeypatch):
     np.testing.assert_array_equal(one.paths, small.paths)
     np.testing.assert_array_equal(one.tasks_per_step, small.tasks_per_step)
     check_run(small, WAREHOUSE)
+
+
+def test_shortcuts_leave_the_pibt_plan_unchanged(monkeypatch):
+    """Moves decided before PIBT's search (free best tiles, chains of followers) and the
+    root lookahead only save sequential calls: plain PIBT (one root per call, nothing
+    decided beforehand) must plan exactly the same paths, in a dense run where pushes,
+    followers and blocked candidates all occur."""
+    n = 3 * N
+    fast = simulate(WAREHOUSE, "warehouse_even", n, T, 3, record_paths=True)
+    monkeypatch.setattr(screen, "PREDECIDE", False)
+    monkeypatch.setattr(screen, "ROOT_LOOKAHEAD", 1)
+    monkeypatch.setattr(screen, "_COMPILED", {})
+    monkeypatch.setattr(screen, "_EXECUTABLES", {})
+    plain = simulate(WAREHOUSE, "warehouse_even", n, T, 3, record_paths=True)
+    assert fast.finished_tasks > 0
+    np.testing.assert_array_equal(fast.paths, plain.paths)
+    np.testing.assert_array_equal(fast.tasks_per_step, plain.tasks_per_step)
+    check_run(plain, WAREHOUSE)
