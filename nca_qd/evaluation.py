@@ -760,12 +760,18 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
     dcfg = OmegaConf.to_container(cfg.domain, resolve=True)
     name = dcfg["name"]
     out = Path(ecfg["out"]) if ecfg.get("out") else run_dir / "evaluation"
-    cells_idx = pick_cells(archive["objective"], ecfg["elites"])
+    by_s_eval = ecfg["select"]["by"] == "s_eval"
+    cells_idx = pick_cells(archive["objective"],
+                           ecfg["select"]["pool"] if by_s_eval else ecfg["elites"])
     domain = make_domain(dcfg)
     tiles = domain.layout_tiles
     plan = _Plan(ecfg, dcfg, name)
     backend = make_backend(ecfg.get("eval"))  # an unreachable scheduler fails here, early
+    selection: list[dict[str, Any]] = []
     try:
+        if by_s_eval:
+            cells_idx, selection = select_scalable(ecfg, dcfg, domain, archive, cells_idx, plan,
+                                                   backend)
         log.info("evaluating %s (%s): cell(s) %s; sizes %s", run_dir, name,
                  [int(c) for c in cells_idx], ", ".join(plan.all_sizes))
         layouts = _build_layouts(ecfg, dcfg, domain, archive, cells_idx, plan, backend)
@@ -784,6 +790,8 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
     t_write = time.time()
     atomic_write_text(out / "evaluate_config.yaml", OmegaConf.to_yaml(OmegaConf.create(ecfg)))
     summary, md = _write_outputs(out, ecfg, name, domain, layouts, requests, results, plan)
+    if selection:
+        write_csv(out / "selection.csv", selection, list(selection[0]))
     remove_stale_outputs(out, t_write - 2.0)
     return Evaluation(name, out, layouts, requests, results, summary, md)
 
@@ -791,6 +799,7 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
 # Files this command writes (patterns under ``out``); one of them older than this evaluation's
 # writing is left from an earlier evaluation into the same folder (e.g. a curve turned off).
 OUTPUT_PATTERNS = ("summary.csv", "summary.md", "runs.csv", "layouts.csv", "layouts_*.png",
+                   "selection.csv",
                    "layouts/*.json", "throughput_vs_agents_*.csv", "throughput_vs_agents_*.png",
                    "tasks_over_time_*.csv", "tasks_over_time_*.png", "tile_usage_*.csv",
                    "tile_usage_*.png", "scaling_sizes.csv", "scaling_sizes.png",
@@ -831,6 +840,17 @@ def _validated(ecfg: Mapping[str, Any]) -> dict[str, Any]:
     tl = e["exact"].get("time_limit_s")
     if tl is not None and (isinstance(tl, bool) or not isinstance(tl, (int, float)) or tl <= 0):
         raise NcaQdError(f"exact.time_limit_s must be a positive number or null, got {tl!r}")
+    sel = e.setdefault("select", {"by": "s", "pool": 10, "runs": 2, "T": 1000})
+    if sel.get("by") not in ("s", "s_eval"):
+        raise NcaQdError(f"select.by must be s or s_eval, got {sel.get('by')!r}")
+    if sel["by"] == "s_eval":
+        for p in ("select.pool", "select.runs", "select.T"):
+            pos(p)
+        if isinstance(e["elites"], bool) or not isinstance(e["elites"], int):
+            raise NcaQdError(f"select.by=s_eval picks a number of elites; elites must be a "
+                             f"count, got {e['elites']!r}")
+        if e["elites"] > sel["pool"]:
+            raise NcaQdError(f"elites ({e['elites']}) exceeds select.pool ({sel['pool']})")
     if e["screen"]["where"] not in ("all", "rest"):
         raise NcaQdError(f"screen.where must be all or rest, got {e['screen']['where']!r}")
     for k in ("train", "eval"):
@@ -930,6 +950,70 @@ def _repair_opts(e: Mapping[str, Any], d: Mapping[str, Any], plan: _Plan,
     opts["n_agents"] = max(int(opts.get("n_agents", 0)), plan.most_agents(shape))
     opts.update({k: v for k, v in (e.get("repair") or {}).items() if v is not None})
     return opts
+
+
+def select_scalable(e, d, domain, archive, pool: np.ndarray, plan: _Plan,
+                    backend) -> tuple[np.ndarray, list[dict[str, Any]]]:
+    """``elites`` cells picked among ``pool`` (the best at S) by a screening run at S_eval.
+
+    Each pool generator generates at S_eval (C_eval iterations) and is repaired; its layout
+    is screened with N_a_eval agents (``select.runs`` seeds, ``select.T`` steps) and the pool
+    is ranked by mean screened throughput (a congested run counts the tasks it finished),
+    then by the S objective. The generators that scale are not always the best at S (the
+    paper's protocol, ``select.by=s``, evaluates those). Returns (cells, selection rows).
+    """
+    from nca_qd.io import array_to_rows
+    from nca_qd.pipeline import make_generator
+    from nca_qd.sim.scenario import build_scenario
+    from nca_qd.sim.screen import simulate_scenarios
+
+    sel, name, tiles = e["select"], domain.name, domain.layout_tiles
+    c_eval, size = int(d["nca_iters"]["eval"]), size_str(plan.s_eval)
+    objective = np.asarray(archive["objective"])
+    lays, secs = generate_timed(domain, make_generator(domain),
+                                np.asarray(archive["genotypes"])[pool], plan.s_eval, c_eval)
+    items = [EvalLayout(f"nca_c{int(c)}@{size}", f"NCA (cell {int(c)})", "nca", size, "eval",
+                        None, lay, int(c), c_eval, sec) for c, lay, sec in zip(pool, lays, secs)]
+    log.info("selecting %d of %d generator(s) by a screening run at %s (%d agents, %d "
+             "run(s), T=%d)", int(e["elites"]), len(pool), size, plan.n_eval, sel["runs"],
+             sel["T"])
+    repair_all(backend, name, [(it, _repair_opts(e, d, plan, plan.s_eval)) for it in items])
+    rows, scens, scored = [], [], []
+    for it in items:
+        row = {"cell": it.cell, "objective_s": float(objective[it.cell]),
+               "repair_status": it.repair.status if it.repair else "", "screen_runs": 0,
+               "screen_success_rate": math.nan, "screen_throughput_mean": math.nan,
+               "note": "", "selected": False}
+        rows.append(row)
+        if it.layout is None:
+            row["note"] = "repair found no layout"
+            continue
+        try:
+            scens.append(build_scenario(array_to_rows(it.layout, tiles), name,
+                                        n_agents=plan.n_eval, source=it.label))
+            scored.append(row)
+        except NcaQdError as err:
+            row["note"] = str(err)
+    if scens:
+        seeds = range(int(e["seed"]), int(e["seed"]) + int(sel["runs"]))
+        res = simulate_scenarios(scens, plan.n_eval, int(sel["T"]), seeds,
+                                 replan=int(e["screen"]["replan"]),
+                                 threads=e["screen"].get("threads"))
+        for row, runs in zip(scored, res):
+            row["screen_runs"] = len(runs)
+            row["screen_success_rate"] = float(np.mean([r.success for r in runs]))
+            row["screen_throughput_mean"] = float(np.mean([r.throughput for r in runs]))
+    ranked = sorted(scored, key=lambda r: (-r["screen_throughput_mean"], -r["objective_s"]))
+    if not ranked:
+        raise NcaQdError(f"select.by=s_eval: none of the {len(pool)} generator(s) gave a "
+                         f"layout to screen at {size} (see the log)")
+    for r in ranked[: int(e["elites"])]:
+        r["selected"] = True
+    for r in ranked:
+        log.info("cell %d: S objective %.3f, screened at %s: throughput %.3f, success %.2f%s",
+                 r["cell"], r["objective_s"], size, r["screen_throughput_mean"],
+                 r["screen_success_rate"], " (selected)" if r["selected"] else "")
+    return np.asarray([r["cell"] for r in ranked[: int(e["elites"])]], dtype=int), rows
 
 
 def _build_layouts(e, d, domain, archive, cells_idx, plan: _Plan, backend) -> dict[str, EvalLayout]:

@@ -240,6 +240,35 @@ def test_pick_cells():
         ev.pick_cells(obj, [1, 7, 2])
 
 
+def test_select_by_s_eval_picks_the_best_screened_generator(tmp_path, maps):
+    """select.by=s_eval screens the pool's S_eval layouts and evaluates the best one; its
+    figure is reproduced by screening the evaluation's own (regenerated, repaired) layout."""
+    from nca_qd.sim.screen import simulate_batch
+
+    run_dir = make_run(tmp_path / "run")
+    out = tmp_path / "evaluation"
+    code = evaluate_cli.main([
+        f"run_dir={run_dir}", f"out={out}", "T=20", "runs.train=1", "runs.eval=1",
+        "exact.train=0", "exact.eval=0", "sweep.train.agents=[]", "sweep.eval.agents=[]",
+        "sizes.shapes=[]", "sizes.include_main=false", "baselines.tiling=false",
+        "baselines.human=false", "eval.workers=0", "progress=false", "select.by=s_eval",
+        "select.pool=2", "select.runs=2", "select.T=60"])
+    assert code == 0
+    sel = read(out / "selection.csv")
+    assert sorted(int(r["cell"]) for r in sel) == [3, 7]
+    scored = [r for r in sel if r["screen_runs"] == "2"]
+    assert scored, sel
+    best = max(scored, key=lambda r: (float(r["screen_throughput_mean"]),
+                                      float(r["objective_s"])))
+    assert [r["cell"] for r in sel if r["selected"] == "true"] == [best["cell"]]
+    cells = {r["cell"] for r in read(out / "summary.csv") if r["kind"] == "nca"}
+    assert cells == {best["cell"]}
+    rows = load_map(out / "layouts" / f"nca_c{best['cell']}_13x18.json").rows
+    again = simulate_batch([rows], "warehouse_even", 12, 60, [0, 1])[0]
+    assert np.mean([r.throughput for r in again]) == pytest.approx(
+        float(best["screen_throughput_mean"]))
+
+
 # ------------------------------------------------------------------------------ bad input
 def run_cli(argv, monkeypatch):
     monkeypatch.setattr(sys, "argv", ["prog", *argv])
@@ -264,6 +293,9 @@ def tiny_run(tmp_path_factory):
     ("dask", "Dask scheduler"),
     ("stray_size", "sizes.agents names 50x50, not a size of the curve"),
     ("not_a_map", "sizes.n_shelves must map sizes to values"),
+    ("select_by", "select.by must be s or s_eval, got 'best'"),
+    ("select_pool", "elites (3) exceeds select.pool (2)"),
+    ("select_list", "elites must be a count"),
 ])
 def test_bad_input_is_one_line_and_exit_2(case, expect, tmp_path, tiny_run, monkeypatch, capsys):
     argv = [f"run_dir={tiny_run}", f"out={tmp_path / 'o'}"]
@@ -285,6 +317,12 @@ def test_bad_input_is_one_line_and_exit_2(case, expect, tmp_path, tiny_run, monk
         argv.append("sizes.agents={50x50: [10]}")
     elif case == "not_a_map":
         argv.append("sizes.n_shelves=[1,2]")
+    elif case == "select_by":
+        argv.append("select.by=best")
+    elif case == "select_pool":
+        argv += ["select.by=s_eval", "select.pool=2", "elites=3"]
+    elif case == "select_list":
+        argv += ["select.by=s_eval", "elites=[3,7]"]
     elif case == "dask":
         argv += ["eval.scheduler=tcp://127.0.0.1:9", "eval.connect_timeout_s=1"]
     code = run_cli(argv, monkeypatch)
