@@ -178,6 +178,25 @@ def test_goals_drawn_in_small_rounds_equal_one_round(monkeypatch):
     check_run(small, WAREHOUSE)
 
 
+def test_big_batches_run_in_groups_with_the_same_results(monkeypatch):
+    """Layouts whose distance tables would exceed MAX_TABLE entries run as several batches;
+    every run's result is what one batch gives."""
+    other = [r.replace(".@@@@.", ".@@.@.", 1) for r in WAREHOUSE]
+    layouts = [WAREHOUSE, other, WAREHOUSE[::-1]]
+    scens = [build_scenario(r, "warehouse_even", n_agents=N) for r in layouts]
+    one = simulate_batch(layouts, "warehouse_even", N, T, [0, 1], record_paths=True)
+    per_layout = screen._round_up(len(screen.prepare(scens[:1]).goal_cells[0])) * 9 * 12
+    assert screen.layout_groups(scens) == [[0, 1, 2]]
+    assert screen.layout_groups(scens, 2 * per_layout) == [[0, 1], [2]]
+    monkeypatch.setattr(screen, "MAX_TABLE", per_layout)
+    assert screen.layout_groups(scens) == [[0], [1], [2]]
+    split = simulate_batch(layouts, "warehouse_even", N, T, [0, 1], record_paths=True)
+    for a, b in zip(one, split):
+        for x, y in zip(a, b):
+            np.testing.assert_array_equal(x.paths, y.paths)
+            assert x.finished_tasks == y.finished_tasks and x.seed == y.seed
+
+
 def test_shortcuts_leave_the_pibt_plan_unchanged(monkeypatch):
     """Moves decided before PIBT's search (free best tiles, chains of followers) and the
     root lookahead only save sequential calls: plain PIBT (one root per call, nothing

@@ -82,6 +82,7 @@ MAX_AGENTS = 46340  # (N - 1) * N + N < 2**31 for the random order's affine map
 ROOT_LOOKAHEAD = 4  # roots looked at per PIBT call for one that no push has decided yet
 PREDECIDE = True    # decide the moves PIBT makes in any order before its search (same plan,
                     # fewer sequential calls); False runs plain PIBT (tests compare the two)
+MAX_TABLE = 2**28   # int16 distance-table entries per batch (512 MiB); more -> several batches
 _PAD = 64      # goal-table and class sizes are padded to multiples of this (fewer recompiles)
 
 
@@ -612,14 +613,38 @@ def _check(n_agents: int, T: int, replan: int, congestion: str = CONGESTION,
         raise NcaQdError(f"replan (congestion check period h) must be >= 1, got {replan!r}")
 
 
+def layout_groups(scens: Sequence[Scenario], max_entries: int | None = None) -> list[list[int]]:
+    """Consecutive groups of scenario indices whose distance tables (``[L, G, H*W]`` int16,
+    G padded to the group's largest goal count) hold at most ``max_entries`` (default
+    ``MAX_TABLE``) entries; a layout too large for int32 indexing alone is an error."""
+    limit = MAX_TABLE if max_entries is None else max_entries
+    groups: list[list[int]] = []
+    g_max = 0
+    for i, s in enumerate(scens):
+        hw = int(np.prod(s.shape))
+        g = _round_up(np.unique(np.concatenate([c.cells for c in s.classes])).size)
+        if g * hw >= 2**31:
+            raise NcaQdError(f"layout {i} ({s.shape[0]}x{s.shape[1]}, {g} goal cells) is too "
+                             f"large for the screen's distance table ({g * hw:,} entries)")
+        if groups and (len(groups[-1]) + 1) * max(g_max, g) * hw <= limit:
+            groups[-1].append(i)
+            g_max = max(g_max, g)
+        else:
+            groups.append([i])
+            g_max = g
+    return groups
+
+
 def simulate_scenarios(scens: Sequence[Scenario], n_agents: int, T: int, seeds: Sequence[int],
                        replan: int = 5, record_paths: bool = False,
                        priority: str = PRIORITY,
                        congestion: str = CONGESTION,
                        threads: int | None = None) -> list[list[ScreenResult]]:
-    """Simulate every validated scenario (one kind, one shape) with every seed, as one
-    vmapped batch (split over ``threads`` CPU threads, default: all available CPUs).
-    Returns ``results[layout][seed]``."""
+    """Simulate every validated scenario (one kind, one shape) with every seed, as vmapped
+    batches (split over ``threads`` CPU threads, default: all available CPUs): one batch,
+    or consecutive groups of layouts when the distance tables would exceed ``MAX_TABLE``
+    entries (30 warehouses of 101x102 need 2.3 G). A run's result does not depend on the
+    batch it is in. Returns ``results[layout][seed]``."""
     _check(n_agents, T, replan, congestion, priority)
     seeds = [int(s) for s in seeds]
     if not seeds:
@@ -629,6 +654,17 @@ def simulate_scenarios(scens: Sequence[Scenario], n_agents: int, T: int, seeds: 
             raise NcaQdError(f"{n_agents} agents but only {s.n_traversable} traversable tiles")
         if any(not np.isfinite(c.weights).all() for c in s.classes):
             raise NcaQdError("goal weights must be finite")
+    out: list[list[ScreenResult]] = []
+    for group in layout_groups(scens):
+        out += _simulate_group([scens[i] for i in group], n_agents, T, seeds, replan,
+                               record_paths, priority, congestion, threads)
+    return out
+
+
+def _simulate_group(scens: Sequence[Scenario], n_agents: int, T: int, seeds: list[int],
+                    replan: int, record_paths: bool, priority: str, congestion: str,
+                    threads: int | None) -> list[list[ScreenResult]]:
+    """One vmapped batch of validated scenarios (see :func:`simulate_scenarios`)."""
     lay = prepare(scens)
     cycle = tuple(int(c) for c in scens[0].cycle)
     fn = _batched(int(n_agents), int(T), int(replan), cycle, bool(record_paths),
