@@ -791,7 +791,7 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
     atomic_write_text(out / "evaluate_config.yaml", OmegaConf.to_yaml(OmegaConf.create(ecfg)))
     summary, md = _write_outputs(out, ecfg, name, domain, layouts, requests, results, plan)
     if selection:
-        write_csv(out / "selection.csv", selection, list(selection[0]))
+        _write_selection(out, selection, tiles)
     remove_stale_outputs(out, t_write - 2.0)
     return Evaluation(name, out, layouts, requests, results, summary, md)
 
@@ -799,7 +799,7 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
 # Files this command writes (patterns under ``out``); one of them older than this evaluation's
 # writing is left from an earlier evaluation into the same folder (e.g. a curve turned off).
 OUTPUT_PATTERNS = ("summary.csv", "summary.md", "runs.csv", "layouts.csv", "layouts_*.png",
-                   "selection.csv",
+                   "selection.csv", "selection/*.json",
                    "layouts/*.json", "throughput_vs_agents_*.csv", "throughput_vs_agents_*.png",
                    "tasks_over_time_*.csv", "tasks_over_time_*.png", "tile_usage_*.csv",
                    "tile_usage_*.png", "scaling_sizes.csv", "scaling_sizes.png",
@@ -983,7 +983,7 @@ def select_scalable(e, d, domain, archive, pool: np.ndarray, plan: _Plan,
         row = {"cell": it.cell, "objective_s": float(objective[it.cell]),
                "repair_status": it.repair.status if it.repair else "", "screen_runs": 0,
                "screen_success_rate": math.nan, "screen_throughput_mean": math.nan,
-               "note": "", "selected": False}
+               "note": "", "selected": False, "_layout": it.layout, "_size": size}
         rows.append(row)
         if it.layout is None:
             row["note"] = "repair found no layout"
@@ -1014,6 +1014,25 @@ def select_scalable(e, d, domain, archive, pool: np.ndarray, plan: _Plan,
                  r["cell"], r["objective_s"], size, r["screen_throughput_mean"],
                  r["screen_success_rate"], " (selected)" if r["selected"] else "")
     return np.asarray([r["cell"] for r in ranked[: int(e["elites"])]], dtype=int), rows
+
+
+def _write_selection(out: Path, selection: list[dict[str, Any]], tiles: str) -> None:
+    """selection.csv, and each candidate's repaired S_eval layout under selection/ (so the
+    survivors of the screen can go to exact RHCR without being generated again)."""
+    from nca_qd.io import MapFile, array_to_rows, save_map
+
+    rows = []
+    for r in selection:
+        lay = r.pop("_layout", None)
+        r["file"] = ""
+        if lay is not None:
+            stem = f"nca_c{r['cell']}_{r.pop('_size')}"
+            save_map(out / "selection" / f"{stem}.json",
+                     MapFile(stem, array_to_rows(lay, tiles), {"kind": "nca", "cell": r["cell"]}))
+            r["file"] = f"selection/{stem}.json"
+        r.pop("_size", None)
+        rows.append(r)
+    write_csv(out / "selection.csv", rows, list(rows[0]))
 
 
 def _build_layouts(e, d, domain, archive, cells_idx, plan: _Plan, backend) -> dict[str, EvalLayout]:

@@ -242,7 +242,7 @@ def test_pick_cells():
 
 def test_select_by_s_eval_picks_the_best_screened_generator(tmp_path, maps):
     """select.by=s_eval screens the pool's S_eval layouts and evaluates the best one; its
-    figure is reproduced by screening the evaluation's own (regenerated, repaired) layout."""
+    figure is reproduced by screening the layout saved under selection/."""
     from nca_qd.sim.screen import simulate_batch
 
     run_dir = make_run(tmp_path / "run")
@@ -263,7 +263,8 @@ def test_select_by_s_eval_picks_the_best_screened_generator(tmp_path, maps):
     assert [r["cell"] for r in sel if r["selected"] == "true"] == [best["cell"]]
     cells = {r["cell"] for r in read(out / "summary.csv") if r["kind"] == "nca"}
     assert cells == {best["cell"]}
-    rows = load_map(out / "layouts" / f"nca_c{best['cell']}_13x18.json").rows
+    assert all((out / r["file"]).is_file() for r in sel)   # every candidate's layout
+    rows = load_map(out / best["file"]).rows
     again = simulate_batch([rows], "warehouse_even", 12, 60, [0, 1])[0]
     assert np.mean([r.throughput for r in again]) == pytest.approx(
         float(best["screen_throughput_mean"]))
