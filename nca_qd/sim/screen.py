@@ -119,6 +119,11 @@ def _round_up(n: int, m: int = _PAD) -> int:
     return max(m, -(-n // m) * m)
 
 
+def _goal_cells(scen: Scenario) -> np.ndarray:
+    """The distinct flat cells that are goals of any class (sorted): the distance table's rows."""
+    return np.unique(np.concatenate([c.cells for c in scen.classes]))
+
+
 def prepare(scens: Sequence[Scenario], pad_goals: int | None = None,
             pad_class: int | None = None) -> LayoutArrays:
     """Stack validated scenarios of one scenario kind and one shape into padded arrays."""
@@ -129,7 +134,7 @@ def prepare(scens: Sequence[Scenario], pad_goals: int | None = None,
     if len(names) != 1 or len(shapes) != 1:
         raise NcaQdError(f"a batch needs layouts of one scenario and one shape, got "
                          f"{sorted(names)} and {sorted(shapes)}")
-    uniq = [np.unique(np.concatenate([c.cells for c in s.classes])) for s in scens]
+    uniq = [_goal_cells(s) for s in scens]
     G = pad_goals or _round_up(max(u.size for u in uniq))
     K = pad_class or _round_up(max(c.cells.size for s in scens for c in s.classes))
     C = len(scens[0].classes)
@@ -622,7 +627,7 @@ def layout_groups(scens: Sequence[Scenario], max_entries: int | None = None) -> 
     g_max = 0
     for i, s in enumerate(scens):
         hw = int(np.prod(s.shape))
-        g = _round_up(np.unique(np.concatenate([c.cells for c in s.classes])).size)
+        g = _round_up(_goal_cells(s).size)
         if g * hw >= 2**31:
             raise NcaQdError(f"layout {i} ({s.shape[0]}x{s.shape[1]}, {g} goal cells) is too "
                              f"large for the screen's distance table ({g * hw:,} entries)")
