@@ -213,3 +213,57 @@ def test_shortcuts_leave_the_pibt_plan_unchanged(monkeypatch):
     np.testing.assert_array_equal(fast.paths, plain.paths)
     np.testing.assert_array_equal(fast.tasks_per_step, plain.tasks_per_step)
     check_run(plain, WAREHOUSE)
+
+
+def _bfs(grid: np.ndarray, goal: int) -> np.ndarray:
+    """Independent breadth-first distances from one flat cell (INF16 where unreachable)."""
+    from collections import deque
+    H, W = grid.shape
+    out = np.full(H * W, screen.INF16, np.int64)
+    if goal < 0 or not grid.flat[goal]:
+        return out
+    out[goal] = 0
+    todo = deque([goal])
+    while todo:
+        c = todo.popleft()
+        r, k = divmod(c, W)
+        for rr, kk in ((r - 1, k), (r + 1, k), (r, k - 1), (r, k + 1)):
+            n = rr * W + kk
+            if 0 <= rr < H and 0 <= kk < W and grid[rr, kk] and out[n] == screen.INF16:
+                out[n] = out[c] + 1
+                todo.append(n)
+    return out
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(data=st.data(), density=st.floats(0.0, 0.6), chunk=st.sampled_from([1, 3, 7, 64]))
+def test_distance_tables_are_breadth_first_distances(data, density, chunk):
+    """Chunked relaxation = BFS from every goal: walls, unreachable pockets, padding goals."""
+    import jax
+
+    rng = np.random.default_rng(data.draw(st.integers(0, 2**32 - 1)))
+    grid = rng.random((6, 9)) >= density
+    goals = rng.integers(-1, grid.size, 7)          # -1: a padding row
+    fn = jax.jit(screen.distance_table, static_argnames="chunk")
+    got = np.asarray(fn(grid, goals.astype(np.int32), chunk=chunk))
+    want = np.stack([_bfs(grid, int(g)) for g in goals])
+    assert got.shape == (7, grid.size)
+    np.testing.assert_array_equal(got, want)
+
+
+def test_distance_tables_split_over_threads_are_the_same(monkeypatch):
+    """Goals split over two threads (each part padded to whole chunks) give the same tables."""
+    import jax.numpy as jnp
+
+    monkeypatch.setattr(screen, "DIST_CHUNK", 8)
+    monkeypatch.setattr(screen, "_COMPILED", {})
+    rng = np.random.default_rng(5)
+    grids = rng.random((2, 7, 8)) >= 0.3
+    goals = rng.integers(-1, 56, (2, 21)).astype(np.int32)
+    one = np.asarray(screen._distance_tables(jnp.asarray(grids), jnp.asarray(goals), 1)())
+    two = np.asarray(screen._distance_tables(jnp.asarray(grids), jnp.asarray(goals), 2)())
+    assert one.shape == two.shape == (2, 21, 56)
+    np.testing.assert_array_equal(one, two)
+    for li in range(2):
+        np.testing.assert_array_equal(one[li], np.stack([_bfs(grids[li], int(g))
+                                                         for g in goals[li]]))

@@ -82,6 +82,7 @@ MAX_AGENTS = 46340  # (N - 1) * N + N < 2**31 for the random order's affine map
 ROOT_LOOKAHEAD = 4  # roots looked at per PIBT call for one that no push has decided yet
 PREDECIDE = True    # decide the moves PIBT makes in any order before its search (same plan,
                     # fewer sequential calls); False runs plain PIBT (tests compare the two)
+DIST_CHUNK = 64     # goals per block of the distance relaxation on CPU (see distance_table)
 MAX_TABLE = 2**28   # int16 distance-table entries per batch (512 MiB); more -> several batches
 _PAD = 64      # goal-table and class sizes are padded to multiples of this (fewer recompiles)
 
@@ -184,35 +185,54 @@ def _uniform(h):
     return (h >> 8).astype(jnp.float32) * jnp.float32(1.0 / 16777216.0)
 
 
-def distance_table(traversable, goal_cells):
-    """int16 ``[G, H*W]`` shortest-path distances from each goal cell (INF16: unreachable)."""
+def distance_table(traversable, goal_cells, chunk: int | None = None):
+    """int16 ``[G, H*W]`` shortest-path distances from each goal cell (INF16: unreachable).
+
+    Repeated relaxation (every traversable cell takes the least of its own value and its
+    neighbours' + 1) until nothing changes. The goals are the minor axis, so a sweep is four
+    shifted row slices of a ``[H*W, chunk]`` block, and they go in chunks of ``chunk``
+    (default :data:`DIST_CHUNK` on CPU, all goals at once elsewhere): on CPU a chunk's block
+    stays in cache through its sweeps and stops when its own goals have converged (101x102
+    warehouse: 22 s -> 6 s than whole-table sweeps in ``[G, H, W]``; on an accelerator one
+    wide block keeps it busy). ``goal_cells`` < 0 (padding) or on a wall: rows of INF16.
+    """
     jax, jnp = _jax()
     H, W = traversable.shape
+    HW = H * W
     G = goal_cells.shape[0]
+    if chunk is None:
+        chunk = DIST_CHUNK if jax.default_backend() == "cpu" else G
+    C = max(1, min(int(chunk), G))
+    n = -(-G // C)
+    goals = jnp.concatenate([goal_cells.astype(jnp.int32),
+                             jnp.full(n * C - G, -1, jnp.int32)]).reshape(n, C)
     inf = jnp.int16(INF16)
-    flat = jnp.full((G, H * W), inf, jnp.int16)
-    flat = flat.at[jnp.arange(G), jnp.clip(goal_cells, 0)].set(
-        jnp.where(goal_cells >= 0, jnp.int16(0), inf))
-    d0 = flat.reshape(G, H, W)
-    trav = traversable[None]
+    trav = traversable.reshape(HW, 1)
+    col = jnp.arange(HW) % W
+    has_left, has_right = (col > 0)[:, None], (col < W - 1)[:, None]
 
     def relax(d):
-        pad = jnp.pad(d, ((0, 0), (1, 1), (1, 1)), constant_values=INF16)
-        best = jnp.minimum(jnp.minimum(pad[:, :-2, 1:-1], pad[:, 2:, 1:-1]),
-                           jnp.minimum(pad[:, 1:-1, :-2], pad[:, 1:-1, 2:]))
+        p = jnp.pad(d, ((W, W), (0, 0)), constant_values=INF16)
+        up, down = p[:HW], p[2 * W:]
+        left = jnp.where(has_left, p[W - 1:W - 1 + HW], inf)
+        right = jnp.where(has_right, p[W + 1:W + 1 + HW], inf)
+        best = jnp.minimum(jnp.minimum(up, down), jnp.minimum(left, right))
         best = jnp.minimum(best, inf - 1) + 1
         return jnp.where(trav, jnp.minimum(d, best), inf)
 
-    def cond(c):
-        return c[1]
-
     def body(c):
         d, _ = c
-        nd = relax(d)
+        nd = relax(relax(d))   # two sweeps per convergence test
         return nd, jnp.any(nd != d)
 
-    d, _ = jax.lax.while_loop(cond, body, (d0, jnp.bool_(True)))
-    return d.reshape(G, H * W)
+    def one_chunk(g):
+        source = (g >= 0) & trav[jnp.clip(g, 0), 0]
+        d = jnp.full((HW, C), inf, jnp.int16).at[jnp.clip(g, 0), jnp.arange(C)].set(
+            jnp.where(source, jnp.int16(0), inf))
+        d, _ = jax.lax.while_loop(lambda c: c[1], body, (d, jnp.bool_(True)))
+        return d.T
+
+    return jax.lax.map(one_chunk, goals).reshape(n * C, HW)[:G]
 
 
 def _neighbours(traversable):
@@ -569,10 +589,37 @@ def _leaves(tree):
 
 
 def _distance_fn():
+    """Jitted ``[L, H, W], [L, G] -> [L, G, H*W]``: on CPU one layout after another (each
+    layout's chunks stay cache-sized, see :func:`distance_table`), elsewhere vmapped."""
     jax, _ = _jax()
     if "dist" not in _COMPILED:
-        _COMPILED["dist"] = jax.jit(jax.vmap(distance_table))
+        if jax.default_backend() == "cpu":
+            _COMPILED["dist"] = jax.jit(lambda t, g: jax.lax.map(
+                lambda x: distance_table(*x), (t, g)))
+        else:
+            _COMPILED["dist"] = jax.jit(jax.vmap(distance_table))
     return _COMPILED["dist"]
+
+
+def _distance_tables(traversable, goal_cells, threads: int):
+    """A compiled callable () -> ``[L, G, H*W]`` distance tables, the goals split over
+    ``threads`` CPU threads (XLA releases the GIL; a table does not depend on the split).
+    Compiled here, so that a caller's clock can start after it."""
+    jax, jnp = _jax()
+    L, G = goal_cells.shape
+    parts = max(1, min(threads, G // DIST_CHUNK)) if jax.default_backend() == "cpu" else 1
+    size = _round_up(-(-G // parts), DIST_CHUNK) if parts > 1 else G
+    padded = jnp.pad(goal_cells, ((0, 0), (0, size * parts - G)), constant_values=-1)
+    exe = _compiled(_distance_fn(), traversable, padded[:, :size])
+    if parts == 1:
+        return lambda: exe(traversable, padded)
+
+    def run():
+        with ThreadPoolExecutor(max_workers=parts) as pool:
+            outs = list(pool.map(lambda i: exe(traversable, padded[:, i * size:(i + 1) * size]),
+                                 range(parts)))
+        return jnp.concatenate(outs, axis=1)[:, :G]
+    return run
 
 
 def _default_threads() -> int:
@@ -682,19 +729,20 @@ def _simulate_group(scens: Sequence[Scenario], n_agents: int, T: int, seeds: lis
     seed_r = np.tile(np.array(seeds, dtype=np.int64) % 2**32, len(scens)).astype(np.uint32)
     # Runs are split into equal chunks (the last one padded with repeats), one per thread;
     # XLA releases the GIL, so chunks run in parallel on CPU. Results do not depend on it.
-    threads = max(1, min(int(threads or _default_threads()), runs))
+    n_threads = max(1, int(threads or _default_threads()))
+    threads = min(n_threads, runs)
     size = -(-runs // threads)
     pad = size * threads - runs
     lidx = np.concatenate([lidx, np.repeat(lidx[-1:], pad)])
     seed_r = np.concatenate([seed_r, np.repeat(seed_r[-1:], pad)])
-    dist_exe = _compiled(_distance_fn(), lay_j.traversable, lay_j.goal_cells)
+    tables = _distance_tables(lay_j.traversable, lay_j.goal_cells, n_threads)
     chunks = [(jnp.asarray(lidx[i * size:(i + 1) * size]),
                jnp.asarray(seed_r[i * size:(i + 1) * size])) for i in range(threads)]
     L, H, W = lay.traversable.shape
     dist_spec = jax.ShapeDtypeStruct((L, lay.goal_cells.shape[1], H * W), jnp.int16)
     exe = _compiled(fn, lay_j, dist_spec, *chunks[0])  # compiled before the clock starts
     cpu0, wall0 = time.process_time(), time.perf_counter()
-    dist = dist_exe(lay_j.traversable, lay_j.goal_cells)
+    dist = tables()
     if threads == 1:
         parts = [jax.device_get(exe(lay_j, dist, *chunks[0]))]
     else:
