@@ -26,6 +26,25 @@ if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
     os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
 
 
+# A short maze run (5 iterations of 8): written once per session, read by test_run's checks
+# and by the notebook test (which would otherwise train its own).
+TINY_MAZE = ["domain=maze", "qd.n_emitters=2", "qd.batch_size=4", "qd.n_evals=40",
+             "qd.checkpoint_every=2", "domain.agent.episodes=3", "output.n_best=2",
+             "qd.progress=false"]
+
+
+@pytest.fixture(scope="session")
+def full_run(tmp_path_factory):
+    """(run directory, Experiment, final state) of the TINY_MAZE run; tests only read it."""
+    from experiments.cli import compose_config
+    from nca_qd.experiment import Experiment
+
+    run_dir = tmp_path_factory.mktemp("full")
+    exp = Experiment(compose_config("run", TINY_MAZE), run_dir)
+    state = exp.run()
+    return run_dir, exp, state
+
+
 @pytest.fixture(scope="session")
 def maps_dir() -> Path:
     if not SHARED_MAPS.is_dir():

@@ -5,18 +5,11 @@ from pathlib import Path
 import nbformat
 from nbclient import NotebookClient
 
-from experiments.cli import compose_config
-from nca_qd.experiment import Experiment
-
 NOTEBOOK = Path(__file__).resolve().parents[1] / "notebooks" / "explore_archive.ipynb"
 
 
-def test_explore_archive_notebook_executes(tmp_path, monkeypatch):
-    run_dir = tmp_path / "tiny"
-    cfg = compose_config("run", ["domain=maze", "qd.n_emitters=2", "qd.batch_size=4",
-                                 "qd.n_evals=16", "domain.agent.episodes=2", "qd.progress=false",
-                                 "output.pictures=false"])
-    Experiment(cfg, run_dir).run()
+def test_explore_archive_notebook_executes(full_run, tmp_path, monkeypatch):
+    run_dir = full_run[0]   # the session's short maze run (conftest), only read
     monkeypatch.setenv("NCA_QD_RUN_DIR", str(run_dir))
     monkeypatch.setenv("JAX_PLATFORMS", "cpu")
     nb = nbformat.read(NOTEBOOK, as_version=4)

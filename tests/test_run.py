@@ -13,11 +13,10 @@ import numpy as np
 import pytest
 
 from experiments.cli import compose_config
+from conftest import TINY_MAZE as TINY
 from nca_qd.experiment import Experiment
 
 REPO = Path(__file__).resolve().parents[1]
-TINY = ["domain=maze", "qd.n_emitters=2", "qd.batch_size=4", "qd.n_evals=40",
-        "qd.checkpoint_every=2", "domain.agent.episodes=3", "output.n_best=2", "qd.progress=false"]
 OUTPUTS = ["config.yaml", "metrics.csv", "checkpoint.msgpack", "archive_result.npz",
            "archive_opt.npz", "archive_result.png", "archive_opt.png", "curves.png",
            "best_train.png", "best_eval.png"]
@@ -30,14 +29,6 @@ def _cfg(*extra):
 def _metrics(run_dir):
     with open(run_dir / "metrics.csv") as fh:
         return list(csv.DictReader(fh))
-
-
-@pytest.fixture(scope="module")
-def full_run(tmp_path_factory):
-    run_dir = tmp_path_factory.mktemp("full")
-    exp = Experiment(_cfg(), run_dir)
-    state = exp.run()
-    return run_dir, exp, state
 
 
 def test_short_maze_run_writes_every_output(full_run):
