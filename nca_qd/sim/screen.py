@@ -162,6 +162,12 @@ def _jax():
     return jax, jnp
 
 
+def _on_cpu() -> bool:
+    """Whether JAX runs on CPU: the distance tables then go in cache-sized chunks."""
+    jax, _ = _jax()
+    return jax.default_backend() == "cpu"
+
+
 def _mix(x):
     """32-bit integer hash (murmur3 finaliser) on uint32 arrays."""
     _, jnp = _jax()
@@ -201,7 +207,7 @@ def distance_table(traversable, goal_cells, chunk: int | None = None):
     HW = H * W
     G = goal_cells.shape[0]
     if chunk is None:
-        chunk = DIST_CHUNK if jax.default_backend() == "cpu" else G
+        chunk = DIST_CHUNK if _on_cpu() else G
     C = max(1, min(int(chunk), G))
     n = -(-G // C)
     goals = jnp.concatenate([goal_cells.astype(jnp.int32),
@@ -593,7 +599,7 @@ def _distance_fn():
     layout's chunks stay cache-sized, see :func:`distance_table`), elsewhere vmapped."""
     jax, _ = _jax()
     if "dist" not in _COMPILED:
-        if jax.default_backend() == "cpu":
+        if _on_cpu():
             _COMPILED["dist"] = jax.jit(lambda t, g: jax.lax.map(
                 lambda x: distance_table(*x), (t, g)))
         else:
@@ -605,9 +611,9 @@ def _distance_tables(traversable, goal_cells, threads: int):
     """A compiled callable () -> ``[L, G, H*W]`` distance tables, the goals split over
     ``threads`` CPU threads (XLA releases the GIL; a table does not depend on the split).
     Compiled here, so that a caller's clock can start after it."""
-    jax, jnp = _jax()
+    _, jnp = _jax()
     L, G = goal_cells.shape
-    parts = max(1, min(threads, G // DIST_CHUNK)) if jax.default_backend() == "cpu" else 1
+    parts = max(1, min(threads, G // DIST_CHUNK)) if _on_cpu() else 1
     size = _round_up(-(-G // parts), DIST_CHUNK) if parts > 1 else G
     padded = jnp.pad(goal_cells, ((0, 0), (0, size * parts - G)), constant_values=-1)
     exe = _compiled(_distance_fn(), traversable, padded[:, :size])
