@@ -767,14 +767,16 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
     tiles = domain.layout_tiles
     plan = _Plan(ecfg, dcfg, name)
     backend = make_backend(ecfg.get("eval"))  # an unreachable scheduler fails here, early
-    selection: list[dict[str, Any]] = []
+    selection: Selection | None = None
     try:
         if by_s_eval:
-            cells_idx, selection = select_scalable(ecfg, dcfg, domain, archive, cells_idx, plan,
-                                                   backend)
+            selection = select_scalable(ecfg, dcfg, domain, archive, cells_idx, plan, backend)
+            cells_idx = selection.cells
         log.info("evaluating %s (%s): cell(s) %s; sizes %s", run_dir, name,
                  [int(c) for c in cells_idx], ", ".join(plan.all_sizes))
-        layouts = _build_layouts(ecfg, dcfg, domain, archive, cells_idx, plan, backend)
+        ready = {selection.layouts[int(c)].key: selection.layouts[int(c)]
+                 for c in cells_idx} if selection else {}
+        layouts = _build_layouts(ecfg, dcfg, domain, archive, cells_idx, plan, backend, ready)
         requests = plan.requests(layouts)
         check_agents(layouts, requests, name, tiles)
         cells = merge_requests(requests)
@@ -952,15 +954,27 @@ def _repair_opts(e: Mapping[str, Any], d: Mapping[str, Any], plan: _Plan,
     return opts
 
 
+@dataclass
+class Selection:
+    """What ``select.by=s_eval`` chose and why: ``cells`` (best first), one ``rows`` entry per
+    candidate (selection.csv), and every candidate's generated and repaired S_eval layout by
+    cell, which the evaluation reuses rather than generating and repairing it again (a
+    time-budgeted repair need not give the same layout twice)."""
+
+    cells: np.ndarray
+    rows: list[dict[str, Any]]
+    layouts: dict[int, EvalLayout]
+
+
 def select_scalable(e, d, domain, archive, pool: np.ndarray, plan: _Plan,
-                    backend) -> tuple[np.ndarray, list[dict[str, Any]]]:
+                    backend) -> Selection:
     """``elites`` cells picked among ``pool`` (the best at S) by a screening run at S_eval.
 
     Each pool generator generates at S_eval (C_eval iterations) and is repaired; its layout
     is screened with N_a_eval agents (``select.runs`` seeds, ``select.T`` steps) and the pool
     is ranked by mean screened throughput (a congested run counts the tasks it finished),
     then by the S objective. The generators that scale are not always the best at S (the
-    paper's protocol, ``select.by=s``, evaluates those). Returns (cells, selection rows).
+    paper's protocol, ``select.by=s``, evaluates those).
     """
     from nca_qd.io import array_to_rows
     from nca_qd.pipeline import make_generator
@@ -983,7 +997,7 @@ def select_scalable(e, d, domain, archive, pool: np.ndarray, plan: _Plan,
         row = {"cell": it.cell, "objective_s": float(objective[it.cell]),
                "repair_status": it.repair.status if it.repair else "", "screen_runs": 0,
                "screen_success_rate": math.nan, "screen_throughput_mean": math.nan,
-               "note": "", "selected": False, "_layout": it.layout, "_size": size}
+               "note": "", "selected": False}
         rows.append(row)
         if it.layout is None:
             row["note"] = "repair found no layout"
@@ -1013,30 +1027,34 @@ def select_scalable(e, d, domain, archive, pool: np.ndarray, plan: _Plan,
         log.info("cell %d: S objective %.3f, screened at %s: throughput %.3f, success %.2f%s",
                  r["cell"], r["objective_s"], size, r["screen_throughput_mean"],
                  r["screen_success_rate"], " (selected)" if r["selected"] else "")
-    return np.asarray([r["cell"] for r in ranked[: int(e["elites"])]], dtype=int), rows
+    return Selection(np.asarray([r["cell"] for r in ranked[: int(e["elites"])]], dtype=int),
+                     rows, {it.cell: it for it in items})
 
 
-def _write_selection(out: Path, selection: list[dict[str, Any]], tiles: str) -> None:
+def _write_selection(out: Path, selection: Selection, tiles: str) -> None:
     """selection.csv, and each candidate's repaired S_eval layout under selection/ (so the
     survivors of the screen can go to exact RHCR without being generated again)."""
     from nca_qd.io import MapFile, array_to_rows, save_map
 
     rows = []
-    for r in selection:
-        lay = r.pop("_layout", None)
-        r["file"] = ""
-        if lay is not None:
-            stem = f"nca_c{r['cell']}_{r.pop('_size')}"
+    for r in selection.rows:
+        item = selection.layouts[r["cell"]]
+        r = {**r, "file": ""}
+        if item.layout is not None:
+            stem = f"nca_c{item.cell}_{item.size}"
             save_map(out / "selection" / f"{stem}.json",
-                     MapFile(stem, array_to_rows(lay, tiles), {"kind": "nca", "cell": r["cell"]}))
+                     MapFile(stem, array_to_rows(item.layout, tiles),
+                             {"kind": "nca", "cell": item.cell}))
             r["file"] = f"selection/{stem}.json"
-        r.pop("_size", None)
         rows.append(r)
     write_csv(out / "selection.csv", rows, list(rows[0]))
 
 
-def _build_layouts(e, d, domain, archive, cells_idx, plan: _Plan, backend) -> dict[str, EvalLayout]:
-    """Generate (NCA), load (human) and tile, then repair everything that needs it."""
+def _build_layouts(e, d, domain, archive, cells_idx, plan: _Plan, backend,
+                   ready: Mapping[str, EvalLayout] | None = None) -> dict[str, EvalLayout]:
+    """Generate (NCA), load (human) and tile, then repair everything that needs it. NCA
+    layouts already generated and repaired (``ready``, by key: the S_eval layouts of a
+    selection) are taken as they are."""
     from nca_qd.pipeline import make_generator
 
     name, tiles = domain.name, domain.layout_tiles
@@ -1047,21 +1065,30 @@ def _build_layouts(e, d, domain, archive, cells_idx, plan: _Plan, backend) -> di
     c_train, c_eval = int(d["nca_iters"]["train"]), int(d["nca_iters"]["eval"])
     iters_cfg = {parse_size(k): positive_ints(v, f"sizes.nca_iters.{k}")[0]
                  for k, v in size_map(e["sizes"], "nca_iters").items()}
-    by_size: dict[tuple[int, int], list[EvalLayout]] = {}
     for shape in sizes:
         which = plan.which(shape)
         n_iters = (c_train if which == "train" else c_eval if which == "eval"
                    else iters_cfg.get(shape) or interpolate_iters(shape, plan.s_train,
                                                                    plan.s_eval, c_train, c_eval))
-        t0 = time.perf_counter()
-        lays, secs = generate_timed(domain, generator, genotypes, shape, n_iters)
-        log.info("generated %d layout(s) at %s (C=%d) in %.1f s", len(lays), size_str(shape),
-                 n_iters, time.perf_counter() - t0)
-        for c, lay, s in zip(cells_idx, lays, secs):
-            item = EvalLayout(f"nca_c{int(c)}@{size_str(shape)}", f"NCA (cell {int(c)})", "nca",
-                              size_str(shape), which, None, lay, int(c), n_iters, s)
-            layouts[item.key] = item
-            by_size.setdefault(shape, []).append(item)
+        keys = [f"nca_c{int(c)}@{size_str(shape)}" for c in cells_idx]
+        todo = [i for i, k in enumerate(keys) if k not in (ready or {})]
+        made: dict[int, tuple[np.ndarray, float]] = {}
+        if todo:
+            t0 = time.perf_counter()
+            lays, secs = generate_timed(domain, generator, genotypes[todo], shape, n_iters)
+            made = dict(zip(todo, zip(lays, secs)))
+            log.info("generated %d layout(s) at %s (C=%d) in %.1f s", len(todo),
+                     size_str(shape), n_iters, time.perf_counter() - t0)
+        for i, (c, key) in enumerate(zip(cells_idx, keys)):
+            if i in made:
+                lay, sec = made[i]
+                item = EvalLayout(key, f"NCA (cell {int(c)})", "nca", size_str(shape), which,
+                                  None, lay, int(c), n_iters, sec)
+            else:
+                item = ready[key]
+                log.info("%s at %s: the selection's layout (generated and repaired there)",
+                         item.label, item.size)
+            layouts[key] = item
     first = [(layouts[k], _repair_opts(e, d, plan, plan.s_train)) for k in layouts
              if layouts[k].size == size_str(plan.s_train)]
     repair_all(backend, name, first)  # S first: the tiling baseline starts from it

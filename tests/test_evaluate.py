@@ -240,11 +240,20 @@ def test_pick_cells():
         ev.pick_cells(obj, [1, 7, 2])
 
 
-def test_select_by_s_eval_picks_the_best_screened_generator(tmp_path, maps):
+def test_select_by_s_eval_picks_the_best_screened_generator(tmp_path, maps, monkeypatch):
     """select.by=s_eval screens the pool's S_eval layouts and evaluates the best one; its
-    figure is reproduced by screening the layout saved under selection/."""
+    figure is reproduced by screening the layout saved under selection/, and the evaluation
+    reuses that layout instead of generating and repairing it again."""
     from nca_qd.sim.screen import simulate_batch
 
+    repaired: list[str] = []
+    real_repair_all = ev.repair_all
+
+    def counting_repair_all(backend, domain_name, items):
+        repaired.extend(it.key for it, _ in items)
+        return real_repair_all(backend, domain_name, items)
+
+    monkeypatch.setattr(ev, "repair_all", counting_repair_all)
     run_dir = make_run(tmp_path / "run")
     out = tmp_path / "evaluation"
     code = evaluate_cli.main([
@@ -265,6 +274,10 @@ def test_select_by_s_eval_picks_the_best_screened_generator(tmp_path, maps):
     assert cells == {best["cell"]}
     assert all((out / r["file"]).is_file() for r in sel)   # every candidate's layout
     rows = load_map(out / best["file"]).rows
+    # one repair per layout: the pool at S_eval (selection), then the chosen one's S layout only
+    assert sorted(repaired) == sorted(["nca_c3@13x18", "nca_c7@13x18",
+                                       f"nca_c{best['cell']}@9x14"])
+    assert load_map(out / "layouts" / f"nca_c{best['cell']}_13x18.json").rows == rows
     again = simulate_batch([rows], "warehouse_even", 12, 60, [0, 1])[0]
     assert np.mean([r.throughput for r in again]) == pytest.approx(
         float(best["screen_throughput_mean"]))
