@@ -16,7 +16,7 @@ void SpaceTimeAStar::push(int cell, int t, int gi, int g, int parent) {
   const int f = g + heuristic(cell, gi);
   nodes_.push_back({cell, t, gi, g, f, parent});
   // Min-heap on f; ties prefer larger g (deeper nodes), then the older node (determinism).
-  heap_.push_back({{f, -g}, static_cast<int>(nodes_.size()) - 1});
+  heap_.push_back({fg_key(f, g), static_cast<int>(nodes_.size()) - 1});
   std::push_heap(heap_.begin(), heap_.end(), std::greater<>());
 }
 

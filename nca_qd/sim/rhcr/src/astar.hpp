@@ -115,7 +115,12 @@ class SpaceTimeAStar {
   size_t goal_count_ = 0;
   std::vector<int> suffix_;
   std::vector<Node> nodes_;
-  std::vector<std::pair<std::pair<int, int>, int>> heap_;  // ((f, -g), node id)
+  // Open list: ((f, -g) packed into one word, node id), so the heap mostly compares one
+  // integer (same order as comparing (f, -g, id); f and g are never negative).
+  static uint64_t fg_key(int f, int g) {
+    return (static_cast<uint64_t>(static_cast<uint32_t>(f)) << 32) | (0xFFFFFFFFu - static_cast<uint32_t>(g));
+  }
+  std::vector<std::pair<uint64_t, int>> heap_;
   std::vector<uint32_t> visited_;
   uint32_t visit_stamp_ = 0;
   int64_t expansions_ = 0;

@@ -14,6 +14,8 @@ WindowedPBS::WindowedPBS(const Grid& grid, int n_agents, int window)
       up_(n_agents),
       down_(n_agents),
       mark_(n_agents, 0),
+      in_set_(n_agents, 0),
+      indeg_(n_agents, 0),
       occ_stamp_((window + 1) * grid.cells(), 0),
       occ_agent_((window + 1) * grid.cells(), -1) {}
 
@@ -31,6 +33,20 @@ void WindowedPBS::build_adjacency(const Node& n) {
   }
 }
 
+// The child's graph is its parent's plus one edge: added before and removed after the
+// child is processed, instead of rebuilding every list from the child's edges.
+void WindowedPBS::push_edge(int hi, int lo) {
+  if (up_[lo].empty() && down_[lo].empty()) touched_.push_back(lo);
+  if (up_[hi].empty() && down_[hi].empty()) touched_.push_back(hi);
+  up_[lo].push_back(hi);
+  down_[hi].push_back(lo);
+}
+
+void WindowedPBS::pop_edge(int hi, int lo) {
+  up_[lo].pop_back();
+  down_[hi].pop_back();
+}
+
 // All agents above (upward) or below `agent` in the current priority graph, excluding it.
 void WindowedPBS::collect(int agent, bool upward, std::vector<int>& out) {
   out.clear();
@@ -39,7 +55,8 @@ void WindowedPBS::collect(int agent, bool upward, std::vector<int>& out) {
     mark_stamp_ = 1;
   }
   mark_[agent] = mark_stamp_;
-  std::vector<int> stack{agent};
+  std::vector<int>& stack = stack_;
+  stack.assign(1, agent);
   while (!stack.empty()) {
     const int u = stack.back();
     stack.pop_back();
@@ -94,7 +111,7 @@ WindowedPBS::Conflict WindowedPBS::find_conflict(const Node& n, int horizon) {
 
 // Replan one agent against the paths of every agent above it (priority graph must be built).
 bool WindowedPBS::replan(Node& n, int agent, const std::vector<AgentQuery>& queries) {
-  std::vector<int> above;
+  std::vector<int>& above = replan_above_;
   collect(agent, true, above);
   rt_.clear();
   for (int a : above) rt_.add_path(grid_, path(n, a));
@@ -106,19 +123,21 @@ bool WindowedPBS::replan(Node& n, int agent, const std::vector<AgentQuery>& quer
 }
 
 // PBS's UpdatePlan: replan `lower` and then, in topological order, each agent below it that
-// collides with an agent above it.
+// collides with an agent above it (the priority graph must be the child's).
 bool WindowedPBS::update_child(Node& child, int lower, const std::vector<AgentQuery>& queries) {
-  build_adjacency(child);
-  std::vector<int> below;
+  // Scratch kept between calls (no allocation per child); in_set_ and indeg_ are all zero
+  // outside this function.
+  std::vector<int>& below = below_;
   collect(lower, false, below);
   below.push_back(lower);
   // Topological order of {lower} ∪ below, restricted to that set (Kahn's algorithm).
-  std::vector<int> in_set(n_agents_, 0), indeg(n_agents_, 0), order;
+  std::vector<int>&in_set = in_set_, &indeg = indeg_, &order = order_, &ready = ready_;
+  order.clear();
+  ready.clear();
   for (int a : below) in_set[a] = 1;
   for (int a : below)
     for (int hi : up_[a])
       if (in_set[hi]) ++indeg[a];
-  std::vector<int> ready;
   for (int a : below)
     if (indeg[a] == 0) ready.push_back(a);
   while (!ready.empty()) {
@@ -129,7 +148,8 @@ bool WindowedPBS::update_child(Node& child, int lower, const std::vector<AgentQu
     for (int lo : down_[a])
       if (in_set[lo] && --indeg[lo] == 0) ready.push_back(lo);
   }
-  std::vector<int> above;
+  for (int a : below) in_set[a] = indeg[a] = 0;
+  std::vector<int>& above = child_above_;
   for (int a : order) {
     bool needs = a == lower;
     if (!needs) {
@@ -186,18 +206,20 @@ bool WindowedPBS::solve(const std::vector<AgentQuery>& queries, int executed_ste
     ++stats_.nodes_expanded;
 
     std::unique_ptr<Node> children[2];
+    build_adjacency(*node);
     for (int k = 0; k < 2; ++k) {
       const int hi = k == 0 ? c.a : c.b;
       const int lo = k == 0 ? c.b : c.a;
       // The new pair must not contradict the existing order (lo already above hi).
-      build_adjacency(*node);
       std::vector<int> above_hi;
       collect(hi, true, above_hi);
       if (std::find(above_hi.begin(), above_hi.end(), lo) != above_hi.end()) continue;
       auto child = std::make_unique<Node>(*node);
       child->edges.emplace_back(hi, lo);
       ++stats_.nodes_generated;
+      push_edge(hi, lo);
       if (update_child(*child, lo, queries)) children[k] = std::move(child);
+      pop_edge(hi, lo);
     }
     // Depth first, cheaper child on top of the stack.
     if (children[0] && children[1] && children[0]->total_cost < children[1]->total_cost)

@@ -60,6 +60,8 @@ class WindowedPBS {
   int* path(Node& n, int agent) { return n.paths.data() + agent * (window_ + 1); }
 
   void build_adjacency(const Node& n);
+  void push_edge(int hi, int lo);
+  void pop_edge(int hi, int lo);
   void collect(int agent, bool upward, std::vector<int>& out);  // ancestors or descendants
   bool paths_conflict(const int* p, const int* q, int horizon) const;
   Conflict find_conflict(const Node& n, int horizon);
@@ -77,6 +79,8 @@ class WindowedPBS {
   std::vector<std::vector<int>> up_, down_;
   std::vector<int> touched_;
   std::vector<uint32_t> mark_;
+  std::vector<int> in_set_, indeg_;  // update_child: all zero between calls
+  std::vector<int> stack_, below_, order_, ready_, child_above_, replan_above_;  // scratch
   uint32_t mark_stamp_ = 0;
   std::vector<uint32_t> occ_stamp_;
   std::vector<int> occ_agent_;
