@@ -25,16 +25,11 @@ void WindowedPBS::build_adjacency(const Node& n) {
     down_[a].clear();
   }
   touched_.clear();
-  for (const auto& [hi, lo] : n.edges) {
-    if (up_[lo].empty() && down_[lo].empty()) touched_.push_back(lo);
-    if (up_[hi].empty() && down_[hi].empty()) touched_.push_back(hi);
-    up_[lo].push_back(hi);
-    down_[hi].push_back(lo);
-  }
+  for (const auto& [hi, lo] : n.edges) push_edge(hi, lo);
 }
 
-// The child's graph is its parent's plus one edge: added before and removed after the
-// child is processed, instead of rebuilding every list from the child's edges.
+// A child's graph is its parent's plus one edge: solve() adds it before and removes it
+// after processing the child, instead of rebuilding every list from the child's edges.
 void WindowedPBS::push_edge(int hi, int lo) {
   if (up_[lo].empty() && down_[lo].empty()) touched_.push_back(lo);
   if (up_[hi].empty() && down_[hi].empty()) touched_.push_back(hi);
