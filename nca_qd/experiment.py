@@ -7,6 +7,8 @@ A run directory holds
   ``best_objective``; the optimisation archive's as ``opt_*``; ``evaluations``, ``wall_seconds``);
 * ``checkpoint.msgpack``: the whole QD state (archives, emitters, key, counters), written
   atomically every ``qd.checkpoint_every`` iterations, at the end and on Ctrl-C;
+* ``eval_memo.npz`` (warehouse, manufacturing): the repairs and exact runs already made,
+  written just before each checkpoint (:mod:`nca_qd.scoring.memo`);
 * ``archive_result.npz`` / ``archive_opt.npz``: plain arrays of both archives, written at the
   end (:func:`load_archive` reads a running run's checkpoint instead);
 * pictures: ``archive_result.png``, ``archive_opt.png``, ``curves.png``, ``best_train.png`` and
@@ -97,6 +99,9 @@ class Experiment:
         return self.loop.init(jax.random.PRNGKey(self.cfg.seed))
 
     def save_checkpoint(self, state: QDState, wall: float) -> None:
+        # The scorer's memo first: on resume it is cut back to the checkpoint's iteration,
+        # so a kill between the two writes loses nothing and replays the same search.
+        self.objective.save_state(self.run_dir)
         save_pytree(self.run_dir / CHECKPOINT_FILE,
                     {"state": state, "wall_seconds": np.float64(wall)})
 
@@ -105,6 +110,7 @@ class Experiment:
         if not path.is_file():
             raise NcaQdError(f"{self.run_dir}: no checkpoint to resume from ({CHECKPOINT_FILE} missing)")
         tree = load_pytree(path, {"state": self.initial_state(), "wall_seconds": np.float64(0)})
+        self.objective.restore_state(self.run_dir, int(tree["state"].iteration))
         return tree["state"], float(tree["wall_seconds"])
 
     def _metrics_rows(self, upto: int) -> list[dict[str, str]]:

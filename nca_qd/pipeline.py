@@ -33,7 +33,8 @@ class Objective:
     """``objective(solutions [b, d], key, context=None) -> EvalBatch``: generate, then score.
 
     Carries the domain scorer's ``metric_names`` and adds ``generate_seconds`` to its metrics
-    (host-side scorers); ``close()`` releases the scorer's worker pools.
+    (host-side scorers); ``save_state`` / ``restore_state`` keep what the scorer remembers
+    across a resume; ``close()`` releases the scorer's worker pools.
     """
 
     def __init__(self, domain: Domain, generator: NCAGenerator, run_cfg=None):
@@ -53,6 +54,16 @@ class Objective:
         ev = self.evaluator(regions, key, context)
         ev.extras.setdefault("metrics", {})["generate_seconds"] = t_gen
         return ev
+
+    def save_state(self, run_dir) -> None:
+        """Write what the scorer keeps between iterations (the MAPF scorer's memo), if any."""
+        if hasattr(self.evaluator, "save_state"):
+            self.evaluator.save_state(run_dir)
+
+    def restore_state(self, run_dir, iteration: int) -> None:
+        """Resume the scorer's own state as it was after ``iteration``, if it has one."""
+        if hasattr(self.evaluator, "restore_state"):
+            self.evaluator.restore_state(run_dir, iteration)
 
     def close(self) -> None:
         if hasattr(self.evaluator, "close"):

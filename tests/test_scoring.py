@@ -12,6 +12,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from experiments.cli import compose_config
 from nca_qd.errors import NcaQdError
@@ -141,7 +143,9 @@ def tiny_scorer():
     from nca_qd.domains import make_domain
     from nca_qd.pipeline import make_generator
 
-    cfg = compose_config("run", TINY_WAREHOUSE + ["eval.workers=0"])
+    # No memo here: these tests score the same regions more than once and must see the
+    # pipeline run each time (the memo has its own tests below).
+    cfg = compose_config("run", TINY_WAREHOUSE + ["eval.workers=0", "eval.memo=false"])
     domain = make_domain(cfg.domain)
     gen = make_generator(domain)
     scorer = domain.make_evaluator(cfg)
@@ -269,6 +273,111 @@ def test_a_failed_repair_is_recorded_and_the_batch_goes_on(tiny_scorer):
     assert ev.extras["metrics"]["n_exact"] == 0
 
 
+# ------------------------------------------------------------------------------ memo
+@given(st.lists(st.sampled_from([b"a", b"b", b"c", b"d"]), max_size=20))
+def test_first_of_each_indexes_every_key_by_its_first_copy(keys):
+    from nca_qd.scoring.memo import first_of_each
+
+    first, inverse = first_of_each(keys)
+    assert [keys[i] for i in first] == list(dict.fromkeys(keys))  # distinct, in order
+    assert [keys[first[j]] for j in inverse] == keys
+    assert all(first[inverse[i]] <= i for i in range(len(keys)))
+
+
+def test_layout_key_tells_layouts_apart_by_tiles_and_shape():
+    from nca_qd.scoring.memo import layout_key
+
+    a = np.zeros((4, 6), np.int32)
+    b = a.copy()
+    b[3, 5] = 1
+    assert layout_key(a) == layout_key(a.astype(np.int8)) != layout_key(b)
+    assert layout_key(a) != layout_key(a.reshape(6, 4))
+
+
+def _memo_entries(memo):
+    from nca_qd.scoring.tasks import RepairOutcome
+
+    lay = np.arange(12, dtype=np.int32).reshape(3, 4) % 3
+    memo.put_repair(b"\x00" * 20, RepairOutcome(lay, "repaired", 0.9, 2, 1.0), iteration=1)
+    memo.put_repair(b"\x01" * 19 + b"\x00", RepairOutcome(None, "infeasible", 0.0, None, 1.0), 2)
+    memo.put_repair(b"\x02" * 20, RepairOutcome(None, "error", 0.0, None, 1.0, "boom"), 2)
+    memo.put_exact(b"\x03" * 20, np.array([5.0, 6.0]), iteration=1)
+    memo.put_exact(b"\x04" * 20, np.array([5.0, 7.0]), iteration=3)
+    memo.put_exact(b"\x05" * 20, np.array([5.0, np.nan]), iteration=1)
+    return lay
+
+
+def test_memo_survives_a_file_and_a_resume_drops_later_entries(tmp_path):
+    from nca_qd.scoring.memo import EvalMemo
+
+    memo = EvalMemo("settings A")
+    lay = _memo_entries(memo)
+    # errors and failed runs are not remembered: they may succeed when tried again
+    assert memo.repair(b"\x02" * 20) is None and memo.exact(b"\x05" * 20) is None
+    memo.save(tmp_path / "m.npz")
+    back = EvalMemo.load(tmp_path / "m.npz", "settings A")
+    rep = back.repair(b"\x00" * 20)   # digests ending in zero bytes keep them
+    np.testing.assert_array_equal(rep.layout, lay)
+    assert (rep.status, rep.similarity, rep.hamming) == ("repaired", 0.9, 2)
+    none = back.repair(b"\x01" * 19 + b"\x00")
+    assert none.layout is None and none.status == "infeasible" and none.hamming is None
+    np.testing.assert_array_equal(back.exact(b"\x04" * 20), [5.0, 7.0])
+    cut = EvalMemo.load(tmp_path / "m.npz", "settings A", upto_iteration=1)
+    assert cut.repair(b"\x01" * 19 + b"\x00") is None and cut.exact(b"\x04" * 20) is None
+    assert cut.exact(b"\x03" * 20) is not None and len(cut) == 2
+    assert len(EvalMemo.load(tmp_path / "m.npz", "settings B")) == 0  # other settings: unused
+    assert len(EvalMemo.load(tmp_path / "missing.npz", "settings A")) == 0
+    (tmp_path / "bad.npz").write_bytes(b"not a zip")
+    assert len(EvalMemo.load(tmp_path / "bad.npz", "settings A")) == 0
+
+
+def test_memo_repairs_and_simulates_each_distinct_layout_once(tiny_scorer):
+    """Copies in one batch share one repair and one set of exact runs; a later batch takes
+    remembered results without any job; each copy scores exactly as its original."""
+    import jax
+
+    from nca_qd.scoring.mapf import ScoringContext
+    from nca_qd.scoring.memo import EvalMemo
+
+    _, domain, gen, scorer = tiny_scorer
+    calls = {"repair": [], "exact": []}
+    repair, exact = scorer.repair, scorer.exact
+
+    def count_repair(layouts):
+        calls["repair"].append(len(layouts))
+        return repair(layouts)
+
+    def count_exact(rows, seeds):
+        calls["exact"].append(len(rows))
+        return exact(rows, seeds)
+
+    base = _regions(domain, gen, 2, seed=3)
+    regions = np.concatenate([base, base[::-1]])  # 4 layouts, 2 distinct
+    empty = ScoringContext(result_elite=lambda m: np.full(len(m), -np.inf), iteration=1)
+    scorer.memo, scorer.repair, scorer.exact = EvalMemo("test"), count_repair, count_exact
+    try:
+        ev = scorer(regions, jax.random.PRNGKey(7), empty)
+        m = ev.extras["metrics"]
+        assert ev.valid.all(), ev.extras["repair_status"]
+        assert calls == {"repair": [2], "exact": [2]}
+        assert (m["repair_reused"], m["exact_reused"], m["exact_runs"]) == (2, 2, 2 * scorer.n_runs)
+        for i, j in ((0, 3), (1, 2)):
+            np.testing.assert_array_equal(ev.extras["repaired"][i], ev.extras["repaired"][j])
+            assert ev.objective[i] == ev.objective[j]
+            assert ev.result_objective[i] == ev.result_objective[j]
+        # a later batch, other seeds: every result is remembered, no job runs
+        again = scorer(regions, jax.random.PRNGKey(8),
+                       ScoringContext(result_elite=lambda m: np.full(len(m), 1e9), iteration=2))
+        assert calls == {"repair": [2], "exact": [2]}
+        np.testing.assert_array_equal(again.objective, ev.objective)
+        np.testing.assert_array_equal(again.result_objective, ev.result_objective)
+        assert again.result_valid.all() and np.isnan(again.extras["screened"]).all()
+        m2 = again.extras["metrics"]
+        assert (m2["repair_reused"], m2["exact_reused"], m2["exact_runs"]) == (4, 4, 0)
+    finally:
+        scorer.memo, scorer.repair, scorer.exact = None, repair, exact
+
+
 # ------------------------------------------------------------------------------ full runs
 def _run(args, timeout=600):
     env = {**os.environ, "JAX_PLATFORMS": "cpu"}
@@ -296,6 +405,7 @@ def test_tiny_warehouse_run_writes_outputs_and_resumes_identically(tmp_path):
     b = np.load(tmp_path / "part" / "archive_result.npz")
     np.testing.assert_array_equal(a["objective"], b["objective"])
     np.testing.assert_array_equal(a["genotypes"], b["genotypes"])
+    assert (tmp_path / "part" / "eval_memo.npz").is_file()  # the resumed leg kept its memo
 
 
 @pytest.mark.parametrize("args, message", [

@@ -115,7 +115,7 @@ class QDLoop:
             cells = grid_cell_indices(jnp.asarray(measures, jnp.float32), spec.cells, spec.ranges)
             return np.asarray(fitness[cells], dtype=np.float64)
 
-        return ScoringContext(result_elite=result_elite)
+        return ScoringContext(result_elite=result_elite, iteration=int(state.iteration) + 1)
 
     def step(self, state: QDState) -> tuple[QDState, dict[str, float], EvalBatch]:
         """One iteration; returns the new state, scalar metrics and the batch's evaluation."""

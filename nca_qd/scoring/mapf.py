@@ -17,6 +17,12 @@ Per batch (paper §4 with the design's screening step):
    ``exact_random_share`` of the rest, as a running check on the screen. ``exact: all``
    simulates every layout exactly (and ``screen: false`` skips the screen, implying ``all``).
 
+**Memo** (``eval.memo``, on by default; :mod:`nca_qd.scoring.memo`): nearby CMA-ES samples
+often generate the same layout, so each distinct generated layout is repaired once and each
+distinct repaired layout simulated exactly once per search; copies take the remembered result
+(and skip the screen). ``repair_reused`` / ``exact_reused`` count them per iteration; the memo
+is saved beside each checkpoint (``eval_memo.npz``) so a resumed run keeps it.
+
 Objectives: f_res = mean exact throughput over the N_e runs (the result archive takes only
 layouts with exact runs); f_opt = f + alpha * Delta with f = f_res, or the scaled screened
 throughput where no exact run was made. Per iteration the metrics record how many exact runs
@@ -26,9 +32,11 @@ and the time spent in each stage (``generate_seconds`` comes from :mod:`nca_qd.p
 
 from __future__ import annotations
 
+import json
 import logging
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Callable, Mapping
 
 import numpy as np
@@ -37,12 +45,14 @@ from nca_qd.domains.base import EvalBatch
 from nca_qd.errors import NcaQdError
 from nca_qd.io import array_to_rows
 from nca_qd.scoring.backend import JobFailed, make_backend, map_jobs
+from nca_qd.scoring.memo import MEMO_FILE, EvalMemo, first_of_each, layout_key
 from nca_qd.scoring.tasks import ExactOutcome, RepairOutcome, repair_options, repair_task, rhcr_task
 
 log = logging.getLogger(__name__)
 
 EXACT_POLICIES = ("selective", "all")
 METRIC_NAMES = ("n_valid", "n_exact", "exact_runs", "screen_bias", "screen_mae",
+                "repair_reused", "exact_reused",
                 "generate_seconds", "repair_seconds", "screen_seconds", "exact_seconds")
 
 
@@ -52,6 +62,8 @@ class ScoringContext:
 
     # measures [b, m] -> the result archive's elite objective in each one's cell (-inf: empty)
     result_elite: Callable[[np.ndarray], np.ndarray]
+    # the iteration being scored (1 = the first): the memo's entries are stamped with it
+    iteration: int = 0
 
 
 @dataclass(frozen=True)
@@ -65,6 +77,7 @@ class ScoringConfig:
     exact_random_share: float = 0.1
     exact_time_limit_s: float | None = None
     screen_empty_cells: bool = False
+    memo: bool = True
 
     @classmethod
     def from_cfg(cls, cfg: Mapping[str, Any] | None) -> "ScoringConfig":
@@ -72,7 +85,7 @@ class ScoringConfig:
         exact = str(cfg.get("exact", "selective"))
         if exact not in EXACT_POLICIES:
             raise NcaQdError(f"eval.exact must be one of {', '.join(EXACT_POLICIES)}, got {exact!r}")
-        for name in ("screen", "screen_empty_cells"):
+        for name in ("screen", "screen_empty_cells", "memo"):
             if name in cfg and not isinstance(cfg[name], bool):
                 raise NcaQdError(f"eval.{name} must be true or false, got {cfg[name]!r}")
         screen = bool(cfg.get("screen", True))
@@ -82,7 +95,8 @@ class ScoringConfig:
                   exact_random_share=float(cfg.get("exact_random_share", 0.1)),
                   exact_time_limit_s=(None if cfg.get("exact_time_limit_s") is None
                                       else float(cfg["exact_time_limit_s"])),
-                  screen_empty_cells=bool(cfg.get("screen_empty_cells", False)))
+                  screen_empty_cells=bool(cfg.get("screen_empty_cells", False)),
+                  memo=bool(cfg.get("memo", True)))
         if not 0.0 <= out.exact_random_share <= 1.0:
             raise NcaQdError(f"eval.exact_random_share must be in [0, 1], got {out.exact_random_share}")
         if out.screen_scale <= 0:
@@ -129,6 +143,11 @@ class MapfScorer:
         self.failed_objective = float(dcfg.get("failed_repair_objective", 0.0))
         self.repair_opts = repair_options(dcfg, "train")
         self.backend = make_backend(run_cfg.get("eval"))
+        # What remembered results depend on: a memo made under other settings is not used.
+        fingerprint = json.dumps({"domain": domain.name, "n_agents": self.n_agents, "T": self.T,
+                                  "n_runs": self.n_runs, "repair": self.repair_opts},
+                                 sort_keys=True, default=str)
+        self.memo: EvalMemo | None = EvalMemo(fingerprint) if self.cfg.memo else None
         log.info("%s scoring: %s; screen %s, exact %s", domain.name, self.backend.describe(),
                  "on" if self.cfg.screen else "off", self.cfg.exact)
 
@@ -164,7 +183,7 @@ class MapfScorer:
         return out
 
     def exact(self, rows: list[list[str]], seeds: list[int]) -> np.ndarray:
-        """Mean exact RHCR throughput per layout ``[n]`` (NaN where a run failed)."""
+        """Exact RHCR throughput per layout and seed ``[n, len(seeds)]`` (NaN where a run failed)."""
         jobs = [(r, self.domain.name, self.n_agents, self.T, s, self.cfg.exact_time_limit_s)
                 for r in rows for s in seeds]
         out = map_jobs(self.backend, rhcr_task, jobs)
@@ -174,7 +193,42 @@ class MapfScorer:
             err = o.error if isinstance(o, (ExactOutcome, JobFailed)) else None
             if err:
                 log.warning("exact run failed: %s", err)
-        return tp.mean(axis=1)
+        return tp
+
+    def _distinct(self, keys: list[bytes]) -> tuple[np.ndarray, np.ndarray]:
+        """``(first, inverse)`` of :func:`first_of_each`; without a memo every layout is its
+        own (copies are scored again, as the paper's search does)."""
+        if self.memo is None:
+            ar = np.arange(len(keys))
+            return ar, ar
+        return first_of_each(keys)
+
+    def _repair_batch(self, layouts: np.ndarray, iteration: int) -> tuple[list[RepairOutcome], int]:
+        """Each layout's repair: remembered, or made once per distinct layout. Returns the
+        outcomes and how many came without a repair job of their own."""
+        keys = [layout_key(lay) for lay in layouts]
+        out: list[RepairOutcome | None] = [
+            self.memo.repair(k) if self.memo is not None else None for k in keys]
+        todo = [i for i, o in enumerate(out) if o is None]
+        first, inverse = self._distinct([keys[i] for i in todo])
+        fresh = self.repair(layouts[[todo[j] for j in first]]) if todo else []
+        for j, rep in zip(first, fresh):
+            if self.memo is not None:
+                self.memo.put_repair(keys[todo[j]], rep, iteration)
+        for t, i in enumerate(todo):
+            out[i] = fresh[inverse[t]]
+        return out, len(layouts) - len(first)  # type: ignore[return-value]
+
+    def _exact_batch(self, rows: list[list[str]], keys: list[bytes], seeds: list[int],
+                     iteration: int) -> np.ndarray:
+        """Mean exact throughput per layout ``[n]``: one set of runs per distinct layout,
+        remembered for the rest of the search."""
+        first, inverse = self._distinct(keys)
+        tp = self.exact([rows[j] for j in first], seeds)
+        if self.memo is not None:
+            for j, runs in zip(first, tp):
+                self.memo.put_exact(keys[j], runs, iteration)
+        return tp.mean(axis=1)[inverse]
 
     def _to_screen(self, valid: np.ndarray, elite: np.ndarray,
                    rng: np.random.Generator) -> np.ndarray:
@@ -188,6 +242,18 @@ class MapfScorer:
         sample = rng.random(valid.shape) < self.cfg.exact_random_share
         return valid & (np.isfinite(elite) | sample)
 
+    # ------------------------------------------------------------------------------ memo
+    def save_state(self, run_dir: str | Path) -> None:
+        """Write the evaluation memo into a run directory (before its checkpoint)."""
+        if self.memo is not None:
+            self.memo.save(Path(run_dir) / MEMO_FILE)
+
+    def restore_state(self, run_dir: str | Path, iteration: int) -> None:
+        """Resume: the run directory's memo, as it was after ``iteration``."""
+        if self.memo is not None:
+            self.memo = EvalMemo.load(Path(run_dir) / MEMO_FILE, self.memo.fingerprint, iteration)
+            log.info("evaluation memo: %d entries up to iteration %d", len(self.memo), iteration)
+
     # ------------------------------------------------------------------------------ batch
     def __call__(self, regions, key, context: ScoringContext | None = None) -> EvalBatch:
         regions = np.asarray(regions)
@@ -197,9 +263,10 @@ class MapfScorer:
         seed0 = int(np.asarray(key, dtype=np.uint32).ravel()[-1] % np.uint32(2**31 - 1))
         seeds = [seed0 + i for i in range(self.n_runs)]
         rng = np.random.default_rng(seed0)
+        iteration = context.iteration if context is not None else 0
 
         t1 = time.perf_counter()
-        repaired = self.repair(layouts)
+        repaired, repair_reused = self._repair_batch(layouts, iteration)
         t_rep = time.perf_counter() - t1
         ok = np.array([r.layout is not None for r in repaired])
         for i, r in enumerate(repaired):
@@ -209,28 +276,40 @@ class MapfScorer:
                           for i, r in enumerate(repaired)])
         measures = np.asarray(self.domain.measures(fixed), dtype=np.float32)
         delta = np.array([r.similarity for r in repaired])
-        idx = np.flatnonzero(ok)
-        rows = [array_to_rows(fixed[i], tiles) for i in idx]
-        pos = {int(i): j for j, i in enumerate(idx)}   # batch index -> its row in rows
+        rows = [array_to_rows(lay, tiles) if good else None for lay, good in zip(fixed, ok)]
+        keys = [layout_key(lay) for lay in fixed]
+        # Layouts already simulated exactly (this search, same settings) need neither.
+        known = np.full(b, np.nan)
+        if self.memo is not None:
+            for i in np.flatnonzero(ok):
+                runs = self.memo.exact(keys[i])
+                known[i] = np.nan if runs is None else runs.mean()
+        fresh = ok & np.isnan(known)
 
         elite = (np.asarray(context.result_elite(measures)) if context is not None
                  else np.full(b, -np.inf))
-        to_screen = self._to_screen(ok, elite, rng)
+        to_screen = self._to_screen(fresh, elite, rng)
         t2 = time.perf_counter()
         screened = np.full(b, np.nan)
         sel = np.flatnonzero(to_screen)
         if sel.size:
-            screened[sel] = self.screen([rows[pos[int(i)]] for i in sel], seeds, cap=b)
+            first, inverse = self._distinct([keys[i] for i in sel])
+            once = self.screen([rows[sel[j]] for j in first], seeds, cap=b)
+            screened[sel] = once[inverse]
         t_scr = time.perf_counter() - t2
         ok &= ~(to_screen & np.isnan(screened))
         predicted = screened * self.cfg.screen_scale
-        run_exact = choose_exact(np.nan_to_num(predicted, nan=-np.inf), elite, ok, self.cfg, rng)
+        run_exact = choose_exact(np.nan_to_num(predicted, nan=-np.inf), elite, ok & fresh,
+                                 self.cfg, rng)
 
         t3 = time.perf_counter()
-        exact = np.full(b, np.nan)
+        exact = known.copy()
         chosen = np.flatnonzero(run_exact)
+        n_simulated = 0  # distinct layouts given exact runs now
         if chosen.size:
-            exact[chosen] = self.exact([rows[pos[int(i)]] for i in chosen], seeds)
+            exact[chosen] = self._exact_batch([rows[i] for i in chosen],
+                                              [keys[i] for i in chosen], seeds, iteration)
+            n_simulated = len(self._distinct([keys[i] for i in chosen])[0])
         t_ex = time.perf_counter() - t3
         has_exact = ~np.isnan(exact)
         f = np.where(has_exact, exact, predicted)
@@ -241,9 +320,11 @@ class MapfScorer:
         err = predicted[both] - exact[both]
         metrics = {
             "n_valid": int(ok.sum()), "n_exact": int(has_exact.sum()),
-            "exact_runs": int(chosen.size * self.n_runs),
+            "exact_runs": n_simulated * self.n_runs,
             "screen_bias": float(err.mean()) if err.size else float("nan"),
             "screen_mae": float(np.abs(err).mean()) if err.size else float("nan"),
+            "repair_reused": int(repair_reused),
+            "exact_reused": int(np.isfinite(known).sum() + chosen.size - n_simulated),
             "repair_seconds": t_rep, "screen_seconds": t_scr,
             "exact_seconds": t_ex,
         }
