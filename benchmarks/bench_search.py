@@ -44,6 +44,9 @@ def summarise(rows: list[dict[str, str]], n_evals: int = 10_000) -> None:
     print(f"exact RHCR: {mean('n_exact'):.1f} of {batch} layouts per iteration "
           f"({mean('exact_runs'):.0f} runs); screen x scale minus exact: bias {mean('screen_bias'):+.3f}, "
           f"mean |error| {mean('screen_mae'):.3f} (throughput)")
+    if rows[0].get("exact_reused") not in (None, ""):  # runs with the evaluation memo
+        print(f"reused (memo or a copy in the batch): repair {mean('repair_reused', rows):.1f}, "
+              f"exact {mean('exact_reused', rows):.1f} of {batch} layouts per iteration")
     iters = n_evals / batch
     print(f"projected {n_evals:,} evaluations: {iters:.0f} iterations x {step:.1f} s = "
           f"{iters * step / 3600:.1f} h (target <= 24 h)")

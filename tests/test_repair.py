@@ -108,3 +108,37 @@ def test_paper_example_matches_the_papers_repair():
     assert_result_ok(res, "warehouse_even", lay)
     assert res.hamming <= 32  # the paper's CPLEX repair moved 32 tiles
     assert res.seconds < 10
+
+
+def _stage_two_windows(monkeypatch, status):
+    """Run a repair whose window solves all answer ``status``; return the cell counts of the
+    violation-neighbourhood solves (the cold-started ones) and the bound they had to meet."""
+    from nca_qd.repair import neighbourhood
+    from nca_qd.repair.milp import WindowResult
+
+    sizes = []
+
+    def fake(current, layout_in, window, rules, *, warm_start, **kw):
+        if not warm_start:
+            sizes.append(int(window.sum()))
+        return WindowResult(status, None, None, 0.0, int(window.sum()))
+
+    monkeypatch.setattr(neighbourhood, "solve_window", fake)
+    storage = np.zeros((9, 6), dtype=np.int32)
+    storage[4, 3] = 2  # one endpoint (tile 2) without a shelf beside it: one violation
+    layout = wh.assemble(storage)
+    res = repair("warehouse_even", layout, n_shelves=20, **FAST)
+    assert_result_ok(res, "warehouse_even", layout, n_shelves=20)  # the greedy still delivers
+    return sizes, res.details["lower_bound"]
+
+
+def test_the_violation_neighbourhood_skips_windows_too_small_for_the_count_gap(monkeypatch):
+    sizes, bound = _stage_two_windows(monkeypatch, "infeasible")
+    assert bound == 20 and len(sizes) >= 1
+    assert min(sizes) >= bound  # radius 1 (9 cells) could not add 20 shelves: never solved
+    assert sizes == sorted(sizes) and len(set(sizes)) == len(sizes)  # widened while infeasible
+
+
+def test_a_timed_out_violation_window_is_not_widened(monkeypatch):
+    sizes, _ = _stage_two_windows(monkeypatch, "timeout")
+    assert len(sizes) == 1
