@@ -145,7 +145,8 @@ class MapfScorer:
         self.backend = make_backend(run_cfg.get("eval"))
         # What remembered results depend on: a memo made under other settings is not used.
         fingerprint = json.dumps({"domain": domain.name, "n_agents": self.n_agents, "T": self.T,
-                                  "n_runs": self.n_runs, "repair": self.repair_opts},
+                                  "n_runs": self.n_runs, "repair": self.repair_opts,
+                                  "exact_time_limit_s": self.cfg.exact_time_limit_s},
                                  sort_keys=True, default=str)
         self.memo: EvalMemo | None = EvalMemo(fingerprint) if self.cfg.memo else None
         log.info("%s scoring: %s; screen %s, exact %s", domain.name, self.backend.describe(),
