@@ -8,6 +8,7 @@ the paper's cluster runs cost hundreds of CPU-hours).
 
     python -m benchmarks.bench_search [--domain warehouse_even] [--iters 4]
     python -m benchmarks.bench_search --run-dir /path/to/run     # summarise a run's metrics.csv
+    python -m benchmarks.bench_search --run-dir /path/to/run --iterations 12-40
 
 The first iteration includes JAX compilation (NCA, screen) and the worker pool's start and is
 reported apart. Early iterations send most layouts to exact RHCR (the result archive is empty);
@@ -35,18 +36,21 @@ def summarise(rows: list[dict[str, str]], n_evals: int = 10_000) -> None:
         vals = [float(r[key]) for r in rs if r.get(key) not in (None, "", "nan")]
         return statistics.fmean(vals) if vals else float("nan")
 
-    batch = int(rows[0]["evaluations"])
+    batch = int(rows[0]["evaluations"]) // int(rows[0]["iteration"])
     step = mean("step_seconds")
-    print(f"iterations: {len(rows)} (batch {batch}); first iteration {float(first['step_seconds']):.1f} s "
-          f"(includes compilation and pool start)")
-    print(f"per iteration (iterations 2..{len(rows)}): {step:.1f} s wall = "
+    ids = [int(r["iteration"]) for r in rows]
+    print(f"iterations: {len(rows)} (batch {batch}); iteration {ids[0]} {float(first['step_seconds']):.1f} s "
+          f"(reported apart: a run's first includes compilation and the pool's start)")
+    print(f"per iteration (iterations {ids[1] if len(ids) > 1 else ids[0]}..{ids[-1]}): {step:.1f} s wall = "
           + ", ".join(f"{k.split('_')[0]} {mean(k):.1f} s" for k in STAGES))
+    runs = mean("exact_runs")
     print(f"exact RHCR: {mean('n_exact'):.1f} of {batch} layouts per iteration "
-          f"({mean('exact_runs'):.0f} runs); screen x scale minus exact: bias {mean('screen_bias'):+.3f}, "
+          f"({runs:.0f} runs, {mean('exact_seconds') / runs if runs else float('nan'):.2f} s wall "
+          f"per run made); screen x scale minus exact: bias {mean('screen_bias'):+.3f}, "
           f"mean |error| {mean('screen_mae'):.3f} (throughput)")
     if rows[0].get("exact_reused") not in (None, ""):  # runs with the evaluation memo
-        print(f"reused (memo or a copy in the batch): repair {mean('repair_reused', rows):.1f}, "
-              f"exact {mean('exact_reused', rows):.1f} of {batch} layouts per iteration")
+        print(f"reused (memo or a copy in the batch): repair {mean('repair_reused'):.1f}, "
+              f"exact {mean('exact_reused'):.1f} of {batch} layouts per iteration")
     iters = n_evals / batch
     print(f"projected {n_evals:,} evaluations: {iters:.0f} iterations x {step:.1f} s = "
           f"{iters * step / 3600:.1f} h (target <= 24 h)")
@@ -72,11 +76,18 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--domain", default="warehouse_even")
     ap.add_argument("--iters", type=int, default=4)
     ap.add_argument("--run-dir", default=None)
+    ap.add_argument("--iterations", default=None, metavar="A-B",
+                    help="with --run-dir: only iterations A..B (e.g. the ones that ran on an "
+                         "otherwise idle machine); the first of them is reported apart")
     args = ap.parse_args(argv if argv is not None else [])
     if args.run_dir:
         with open(Path(args.run_dir) / "metrics.csv") as fh:
             rows = list(csv.DictReader(fh))
-        print(f"== search cost of {args.run_dir}")
+        if args.iterations:
+            lo, _, hi = args.iterations.partition("-")
+            rows = [r for r in rows if int(lo) <= int(r["iteration"]) <= int(hi or lo)]
+        print(f"== search cost of {args.run_dir}"
+              + (f", iterations {args.iterations}" if args.iterations else ""))
     else:
         print(f"== search cost: {args.domain}, {args.iters} CMA-MAE iterations at the paper's settings")
         rows = run(args.domain, args.iters)
