@@ -221,15 +221,15 @@ class MapfScorer:
         return out, len(layouts) - len(first)  # type: ignore[return-value]
 
     def _exact_batch(self, rows: list[list[str]], keys: list[bytes], seeds: list[int],
-                     iteration: int) -> np.ndarray:
+                     iteration: int) -> tuple[np.ndarray, int]:
         """Mean exact throughput per layout ``[n]``: one set of runs per distinct layout,
-        remembered for the rest of the search."""
+        remembered for the rest of the search. Also returns how many layouts were simulated."""
         first, inverse = self._distinct(keys)
         tp = self.exact([rows[j] for j in first], seeds)
         if self.memo is not None:
             for j, runs in zip(first, tp):
                 self.memo.put_exact(keys[j], runs, iteration)
-        return tp.mean(axis=1)[inverse]
+        return tp.mean(axis=1)[inverse], len(first)
 
     def _to_screen(self, valid: np.ndarray, elite: np.ndarray,
                    rng: np.random.Generator) -> np.ndarray:
@@ -308,9 +308,8 @@ class MapfScorer:
         chosen = np.flatnonzero(run_exact)
         n_simulated = 0  # distinct layouts given exact runs now
         if chosen.size:
-            exact[chosen] = self._exact_batch([rows[i] for i in chosen],
-                                              [keys[i] for i in chosen], seeds, iteration)
-            n_simulated = len(self._distinct([keys[i] for i in chosen])[0])
+            exact[chosen], n_simulated = self._exact_batch(
+                [rows[i] for i in chosen], [keys[i] for i in chosen], seeds, iteration)
         t_ex = time.perf_counter() - t3
         has_exact = ~np.isnan(exact)
         f = np.where(has_exact, exact, predicted)
