@@ -59,6 +59,26 @@ def test_initial_positions_are_distinct_and_spread():
     assert len(start) == 60
 
 
+def test_every_agent_starts_towards_the_cycles_first_kind():
+    # RHCR: each agent's first goal is an endpoint (warehouse) / a kind-0 station.
+    res = simulate(WAREHOUSE, "warehouse_even", 30, 20, seed=4)
+    ends = {r * len(WAREHOUSE[0]) + c for r, row in enumerate(WAREHOUSE) for c, ch in enumerate(row)
+            if ch == "e"}
+    assert all(int(g[0, 0]) * len(WAREHOUSE[0]) + int(g[0, 1]) in ends for g in res.goals)
+
+
+def test_reference_starts_are_one_configuration_for_every_seed():
+    runs = [simulate(WAREHOUSE, "warehouse_even", 40, 5, seed=s, record_paths=True,
+                     reference_starts=True) for s in (0, 1, 2)]
+    starts = [r.paths[0] for r in runs]
+    assert len({tuple(p) for p in starts[0].tolist()}) == 40
+    assert all((s == starts[0]).all() for s in starts)
+    first = [np.array([g[0] for g in r.goals]) for r in runs]
+    assert not (first[1] == first[0]).all() and not (first[2] == first[0]).all()  # goals differ
+    random = simulate(WAREHOUSE, "warehouse_even", 40, 5, seed=0, record_paths=True)
+    assert not (random.paths[0] == starts[0]).all()
+
+
 @st.composite
 def warehouse_maps(draw):
     h, w = draw(st.integers(3, 8)), draw(st.integers(3, 8))
@@ -111,7 +131,7 @@ def test_random_manufacturing_always_valid(rows, density, T, seed):
 
 def test_dense_map_congests_and_stops_early():
     n_free = build_scenario(WAREHOUSE, "warehouse_even").n_traversable
-    res = run_checked(WAREHOUSE, "warehouse_even", n_free - 2, 500, seed=0)
+    res = run_checked(WAREHOUSE, "warehouse_even", n_free - 2, 500, seed=0, plan_time_limit_s=0.5)
     assert res.congested and not res.success
     assert res.stop_time < 500 and res.stop_time % 5 == 0
     assert res.paths.shape[0] == res.stop_time + 1

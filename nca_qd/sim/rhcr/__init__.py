@@ -3,7 +3,10 @@
 Every ``replan`` (h) timesteps RHCR plans collision-free paths for all agents over the next
 ``window`` (w) timesteps with windowed Priority-Based Search (Ma et al. 2019) over a
 space-time A* on a reservation table (heuristic: true distances along each agent's goal
-queue), executes h steps and repeats. The work happens in C++ (``src/``, module ``_core``),
+queue), executes h steps and repeats. The planner follows RHCR's public implementation as the
+paper ran it (PBS with ``prioritize_start``, a per-call time limit, LRA*-style repair of a
+failed call); ``src/pbs.hpp`` lists its decisions. :data:`VERSION` changes whenever a change
+alters simulated outcomes, so cached results of another planner are never reused. The work happens in C++ (``src/``, module ``_core``),
 which releases the GIL, so :func:`simulate_many` runs seeds in parallel threads.
 
 >>> r = simulate(rows, "warehouse_even", n_agents=200, T=1000, seed=0)
@@ -29,7 +32,9 @@ except ImportError as exc:  # pragma: no cover - only when the package was not b
     raise ImportError("nca_qd.sim.rhcr._core is not built; run `make .venv/.installed` "
                       f"(pip install -e .) to compile it ({exc})") from exc
 
-__all__ = ["SimResult", "simulate", "simulate_many", "simulate_scenario"]
+__all__ = ["SimResult", "VERSION", "simulate", "simulate_many", "simulate_scenario"]
+
+VERSION: int = int(_core.VERSION)
 
 
 @dataclass
@@ -39,6 +44,9 @@ class SimResult(RunResult):
 
     replans: int = 0
     pbs_failures: int = 0
+    call_nodes: np.ndarray | None = None        # per planning call: PBS nodes expanded
+    call_cpu_seconds: np.ndarray | None = None  # per planning call: CPU seconds
+    call_failed: np.ndarray | None = None       # per planning call: PBS failed (repaired)
     pbs_nodes: int = 0
     low_level_expansions: int = 0
 
@@ -48,30 +56,52 @@ class SimResult(RunResult):
 
 def simulate(rows: Sequence[str], scenario: str, n_agents: int, T: int, seed: int,
              window: int = 10, replan: int = 5, time_limit_s: float | None = None,
-             record_paths: bool = False, pbs_max_nodes: int | None = None) -> SimResult:
+             record_paths: bool = False, pbs_max_nodes: int | str | None = "auto",
+             plan_time_limit_s: float | None = 60.0, prioritize_start: bool = True,
+             reference_starts: bool = False) -> SimResult:
     """Simulate ``n_agents`` agents on the layout ``rows`` for ``T`` timesteps.
 
     Raises :class:`NcaQdError` for bad input (unknown scenario or tiles, unreachable goals,
     too many agents, non-positive horizon or window). ``time_limit_s`` bounds the wall-clock
     time; a run that hits it stops with ``timed_out=True`` and ``success=False``.
+    ``plan_time_limit_s`` bounds one planning call in CPU seconds (RHCR's cutoff, 60 s in the
+    paper; ``None``: none) and ``pbs_max_nodes`` its high-level PBS nodes (``None``: none;
+    ``"auto"``: 7,000,000 / ``n_agents``, at least 1,000 -- the nodes the reference RHCR
+    expands within its 60 s at 1,400 agents, where it spends 6-26 ms per node; our nodes are
+    10-100 times cheaper, so a time limit alone would search far longer than the paper's
+    planner could). A call that hits either is repaired and counted in ``pbs_failures``.
     """
     scen = build_scenario(list(rows), scenario, n_agents=n_agents)
     return simulate_scenario(scen, n_agents, T, seed, window, replan, time_limit_s,
-                             record_paths, pbs_max_nodes)
+                             record_paths, pbs_max_nodes, plan_time_limit_s, prioritize_start,
+                             reference_starts)
 
 
 def simulate_scenario(scen: Scenario, n_agents: int, T: int, seed: int, window: int = 10,
                       replan: int = 5, time_limit_s: float | None = None,
-                      record_paths: bool = False, pbs_max_nodes: int | None = None) -> SimResult:
+                      record_paths: bool = False, pbs_max_nodes: int | str | None = "auto",
+                      plan_time_limit_s: float | None = 60.0,
+                      prioritize_start: bool = True, reference_starts: bool = False) -> SimResult:
     """:func:`simulate` for an already validated :class:`Scenario`."""
     _check_params(scen, n_agents, T, window, replan, time_limit_s)
+    if plan_time_limit_s is not None and not plan_time_limit_s > 0:
+        raise NcaQdError(f"plan_time_limit_s must be positive or None, got {plan_time_limit_s}")
+    if pbs_max_nodes == "auto":
+        nodes = 0
+    elif pbs_max_nodes is None:
+        nodes = -1
+    elif isinstance(pbs_max_nodes, (int, np.integer)) and pbs_max_nodes > 0:
+        nodes = int(pbs_max_nodes)
+    else:
+        raise NcaQdError(f"pbs_max_nodes must be a positive integer, 'auto' or None, got {pbs_max_nodes!r}")
     raw = _core.run(
         np.ascontiguousarray(scen.traversable, dtype=np.uint8),
         [c.cells.tolist() for c in scen.classes],
         [c.weights.tolist() for c in scen.classes],
         [c.dwell for c in scen.classes],
         list(scen.cycle), n_agents, T, int(seed) % 2**64, window, replan,
-        float(time_limit_s or 0.0), int(pbs_max_nodes or 0), record_paths)
+        float(time_limit_s or 0.0), nodes, record_paths,
+        float(plan_time_limit_s or 0.0), bool(prioritize_start), bool(reference_starts))
     width = scen.shape[1]
     offsets, cells, dwell = raw["goal_offsets"], raw["goal_cells"], raw["goal_dwell"]
     goals = [np.stack([cells[a:b] // width, cells[a:b] % width, dwell[a:b]], axis=1)
@@ -89,6 +119,8 @@ def simulate_scenario(scen: Scenario, n_agents: int, T: int, seed: int, window: 
         cpu_seconds=float(raw["cpu_seconds"]), wall_seconds=float(raw["wall_seconds"]),
         replans=int(raw["replans"]), pbs_failures=int(raw["pbs_failures"]),
         pbs_nodes=int(raw["pbs_nodes"]), low_level_expansions=int(raw["low_level_expansions"]),
+        call_nodes=raw["call_nodes"], call_cpu_seconds=raw["call_cpu_seconds"],
+        call_failed=raw["call_failed"].astype(bool),
         goals=goals, paths=paths)
 
 

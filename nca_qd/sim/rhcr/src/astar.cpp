@@ -5,22 +5,26 @@
 
 namespace rhcr {
 
-bool SpaceTimeAStar::seen(int t, int gi, int cell) {
-  const size_t idx = (static_cast<size_t>(t) * (goal_count_ + 1) + gi) * grid_.cells() + cell;
+// States are (time, goals done, cell); the chain of waits on the start cell since time 0 is
+// kept apart (slot goal_count_ + 1): under start_priority it may pass where others may not.
+bool SpaceTimeAStar::seen(int t, int gi, int cell, bool at_start) {
+  const size_t slot = at_start ? goal_count_ + 1 : gi;
+  const size_t idx = (static_cast<size_t>(t) * (goal_count_ + 2) + slot) * grid_.cells() + cell;
   if (visited_[idx] == visit_stamp_) return true;
   visited_[idx] = visit_stamp_;
   return false;
 }
 
-void SpaceTimeAStar::push(int cell, int t, int gi, int g, int parent) {
+void SpaceTimeAStar::push(int cell, int t, int gi, int g, int parent, bool at_start) {
   const int f = g + heuristic(cell, gi);
-  nodes_.push_back({cell, t, gi, g, f, parent});
+  nodes_.push_back({cell, t, gi, g, f, parent, at_start});
   // Min-heap on f; ties prefer larger g (deeper nodes), then the older node (determinism).
   heap_.push_back({fg_key(f, g), static_cast<int>(nodes_.size()) - 1});
   std::push_heap(heap_.begin(), heap_.end(), std::greater<>());
 }
 
-bool SpaceTimeAStar::plan(const ReservationTable& rt, const AgentQuery& q, int* out_path, int& cost) {
+bool SpaceTimeAStar::plan(const ReservationTable& rt, const AgentQuery& q, int* out_path, int& cost,
+                          bool start_priority) {
   query_ = &q;
   goal_count_ = q.goals.size();
   const int Q = static_cast<int>(goal_count_);
@@ -30,7 +34,7 @@ bool SpaceTimeAStar::plan(const ReservationTable& rt, const AgentQuery& q, int* 
   for (int i = Q - 1; i >= 0; --i)
     suffix_[i] = q.goals[i].dwell + (i + 1 < Q ? q.dist[i + 1][q.goals[i].cell] + suffix_[i + 1] : 0);
 
-  const size_t need = static_cast<size_t>(window_ + 1) * (Q + 1) * grid_.cells();
+  const size_t need = static_cast<size_t>(window_ + 1) * (Q + 2) * grid_.cells();
   if (visited_.size() < need) {
     visited_.assign(need, 0);
     visit_stamp_ = 0;
@@ -44,8 +48,8 @@ bool SpaceTimeAStar::plan(const ReservationTable& rt, const AgentQuery& q, int* 
 
   // The root never completes a goal: goals count on arrival steps (times >= 1), and a
   // dwell already in progress continues through the root's own macro below.
-  seen(0, 0, q.start);
-  push(q.start, 0, 0, 0, -1);
+  seen(0, 0, q.start, true);
+  push(q.start, 0, 0, 0, -1, true);
 
   int64_t budget = max_expansions;
   while (!heap_.empty()) {
@@ -57,17 +61,14 @@ bool SpaceTimeAStar::plan(const ReservationTable& rt, const AgentQuery& q, int* 
     if (--budget < 0) return false;
 
     // Terminal 1: the window's end. Beyond it nothing is reserved, so g + h is exact.
-    bool done = n.t >= window_;
-    // Terminal 2: every goal done, and the agent can hold its cell until the window ends.
-    if (!done && n.gi == Q) {
-      done = true;
-      for (int t = n.t + 1; t <= window_ && done; ++t) done = rt.vertex_free(t, n.cell);
-    }
-    if (done) {
+    // Terminal 2: every goal done (not before min_end): the path ends here.
+    const bool window_end = n.t >= window_;
+    if (window_end || (n.gi == Q && n.t >= q.min_end)) {
       cost = n.f;
       // Reconstruct: every node fills the times after its parent with its cell (a macro
-      // node covers several waits), then hold the final cell to the window's end.
-      for (int t = n.t; t <= window_; ++t) out_path[t] = n.cell;
+      // node covers several waits); after a path's end the agent is absent.
+      for (int t = n.t; t <= window_; ++t) out_path[t] = window_end ? n.cell : kAbsent;
+      out_path[std::min(n.t, window_)] = n.cell;
       for (int cur = id; nodes_[cur].parent >= 0; cur = nodes_[cur].parent) {
         const Node& child = nodes_[cur];
         const Node& par = nodes_[child.parent];
@@ -85,11 +86,13 @@ bool SpaceTimeAStar::plan(const ReservationTable& rt, const AgentQuery& q, int* 
       const int dwell = root ? q.start_dwell_left : q.goals[n.gi].dwell;
       const int t_end = std::min(n.t + dwell, window_);
       bool free = true;
-      for (int t = n.t + 1; t <= t_end && free; ++t) free = rt.vertex_free(t, n.cell);
+      if (!(start_priority && n.at_start))
+        for (int t = n.t + 1; t <= t_end && free; ++t) free = rt.vertex_free(t, n.cell);
       if (free) {
         const int gi2 = advance(n.cell, n.gi + 1);
         // A macro that runs past the window is terminal; its g counts the whole dwell.
-        if (n.t + dwell >= window_ || !seen(t_end, gi2, n.cell)) push(n.cell, t_end, gi2, n.g + dwell, id);
+        if (n.t + dwell >= window_ || !seen(t_end, gi2, n.cell, n.at_start))
+          push(n.cell, t_end, gi2, n.g + dwell, id, n.at_start);
       }
     }
 
@@ -97,11 +100,13 @@ bool SpaceTimeAStar::plan(const ReservationTable& rt, const AgentQuery& q, int* 
     const int t1 = n.t + 1;
     for (int d = 0; d <= kWait; ++d) {
       const int v = d == kWait ? n.cell : grid_.neighbor(n.cell, d);
-      if (v < 0 || !rt.vertex_free(t1, v)) continue;
+      if (v < 0) continue;
+      const bool waits_at_start = d == kWait && n.at_start;
+      if (!rt.vertex_free(t1, v) && !(start_priority && waits_at_start)) continue;
       if (d != kWait && !rt.edge_free(grid_, n.t, n.cell, v)) continue;
       const int gi2 = advance(v, n.gi);
-      if (seen(t1, gi2, v)) continue;
-      push(v, t1, gi2, n.g + 1, id);
+      if (seen(t1, gi2, v, waits_at_start)) continue;
+      push(v, t1, gi2, n.g + 1, id, waits_at_start);
     }
   }
   return false;

@@ -11,8 +11,13 @@
 //     timesteps without leaving. A* models this with a "dwell macro" successor (d waits in
 //     one edge); plain moves out of the goal cell stay available, so a blocked dwell never
 //     makes the agent unplannable.
-// An agent that finishes its whole queue inside the window holds its last cell until the
-// window ends, which is only allowed if no higher-priority agent needs that cell.
+// Like RHCR's SIPP, a path ends when the agent has done its whole queue (times after that
+// hold kAbsent: the agent reserves nothing there and conflicts with nobody); a path may not
+// end before `min_end`, so every executed step has a cell.
+//
+// prioritize_start (RHCR's option, on in the paper): an agent that has not left its start
+// cell may keep waiting there whatever the reservations say (`start_priority`); PBS then
+// replans whoever runs into it.
 #pragma once
 
 #include <cstdint>
@@ -27,6 +32,9 @@ struct Goal {
   int dwell;
 };
 
+// A path cell after the path's end.
+constexpr int kAbsent = -1;
+
 // Cells occupied by higher-priority agents at times 0..window, for vertex and swap checks.
 class ReservationTable {
  public:
@@ -40,15 +48,27 @@ class ReservationTable {
     }
   }
 
-  // Reserve an agent's path (window + 1 cells, times 0..window).
+  // Reserve an agent's path (window + 1 cells, times 0..window; kAbsent cells reserve nothing).
   void add_path(const Grid& grid, const int* path) {
-    for (int t = 0; t <= window_; ++t) {
+    for (int t = 0; t <= window_ && path[t] != kAbsent; ++t) {
       const int idx = t * cells_ + path[t];
       if (stamp_[idx] != current_) {
         stamp_[idx] = current_;
         came_[idx] = 0;
       }
       if (t > 0 && path[t] != path[t - 1]) came_[idx] |= 1u << grid.direction(path[t], path[t - 1]);
+    }
+  }
+
+  // Reserve `cell` at times [0, t_end) (t_end clipped to the window): another agent waiting on
+  // its start cell (RHCR's prioritize_start).
+  void add_wait(int cell, int t_end) {
+    for (int t = 0; t < t_end && t <= window_; ++t) {
+      const int idx = t * cells_ + cell;
+      if (stamp_[idx] != current_) {
+        stamp_[idx] = current_;
+        came_[idx] = 0;
+      }
     }
   }
 
@@ -72,6 +92,7 @@ class ReservationTable {
 struct AgentQuery {
   int start = 0;
   int start_dwell_left = 0;
+  int min_end = 0;  // the path may not end (all goals done) before this time
   std::vector<Goal> goals;
   std::vector<const uint16_t*> dist;
 };
@@ -82,7 +103,10 @@ class SpaceTimeAStar {
 
   // Plans into out_path[0..window]; returns false if no path exists (or the expansion
   // budget is exhausted). `cost` is the path's estimated total cost g + h at its end.
-  bool plan(const ReservationTable& rt, const AgentQuery& q, int* out_path, int& cost);
+  // With `start_priority`, waiting on the start cell (before first leaving it) ignores the
+  // reservations of that cell.
+  bool plan(const ReservationTable& rt, const AgentQuery& q, int* out_path, int& cost,
+            bool start_priority = false);
 
   int64_t expansions() const { return expansions_; }
   int max_expansions = 200000;
@@ -95,6 +119,7 @@ class SpaceTimeAStar {
     int g;   // cost so far (time, plus dwell beyond the window for an overflowing macro)
     int f;
     int parent;
+    bool at_start;  // has waited on the start cell since time 0
   };
 
   int heuristic(int cell, int gi) const {
@@ -106,8 +131,8 @@ class SpaceTimeAStar {
     while (gi < static_cast<int>(goal_count_) && query_->goals[gi].cell == cell && query_->goals[gi].dwell == 0) ++gi;
     return gi;
   }
-  bool seen(int t, int gi, int cell);
-  void push(int cell, int t, int gi, int g, int parent);
+  bool seen(int t, int gi, int cell, bool at_start);
+  void push(int cell, int t, int gi, int g, int parent, bool at_start);
 
   const Grid& grid_;
   int window_;

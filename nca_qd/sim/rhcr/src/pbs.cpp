@@ -1,9 +1,22 @@
 #include "pbs.hpp"
 
+#include <time.h>
+
 #include <algorithm>
+#include <cstdlib>
 #include <memory>
+#include <numeric>
 
 namespace rhcr {
+namespace {
+
+double thread_cpu_seconds() {
+  timespec ts{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+  return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
+}
+
+}  // namespace
 
 WindowedPBS::WindowedPBS(const Grid& grid, int n_agents, int window)
     : grid_(grid),
@@ -11,273 +24,357 @@ WindowedPBS::WindowedPBS(const Grid& grid, int n_agents, int window)
       window_(window),
       astar_(grid, window),
       rt_(grid.cells(), window),
-      up_(n_agents),
-      down_(n_agents),
+      higher_(n_agents),
       mark_(n_agents, 0),
-      in_set_(n_agents, 0),
-      indeg_(n_agents, 0),
-      occ_stamp_((window + 1) * grid.cells(), 0),
-      occ_agent_((window + 1) * grid.cells(), -1) {}
+      touched_flag_(n_agents, 0) {}
 
-void WindowedPBS::build_adjacency(const Node& n) {
-  for (int a : touched_) {
-    up_[a].clear();
-    down_[a].clear();
+void WindowedPBS::build_graph(const Node& n) {
+  for (int a : graph_agents_) higher_[a].clear();
+  graph_agents_.clear();
+  for (const auto& [lo, hi] : n.edges) {
+    if (higher_[lo].empty()) graph_agents_.push_back(lo);
+    higher_[lo].push_back(hi);
   }
-  touched_.clear();
-  for (const auto& [hi, lo] : n.edges) push_edge(hi, lo);
 }
 
-// A child's graph is its parent's plus one edge: solve() adds it before and removes it
-// after processing the child, instead of rebuilding every list from the child's edges.
-void WindowedPBS::push_edge(int hi, int lo) {
-  if (up_[lo].empty() && down_[lo].empty()) touched_.push_back(lo);
-  if (up_[hi].empty() && down_[hi].empty()) touched_.push_back(hi);
-  up_[lo].push_back(hi);
-  down_[hi].push_back(lo);
-}
-
-void WindowedPBS::pop_edge(int hi, int lo) {
-  up_[lo].pop_back();
-  down_[hi].pop_back();
-}
-
-// All agents above (upward) or below `agent` in the current priority graph, excluding it.
-void WindowedPBS::collect(int agent, bool upward, std::vector<int>& out) {
+// Every agent above `agent` in the current priority graph (transitively), excluding itself.
+void WindowedPBS::higher_of(int agent, std::vector<int>& out) {
   out.clear();
+  if (higher_[agent].empty()) return;
   if (++mark_stamp_ == 0) {
     std::fill(mark_.begin(), mark_.end(), 0);
     mark_stamp_ = 1;
   }
   mark_[agent] = mark_stamp_;
-  std::vector<int>& stack = stack_;
-  stack.assign(1, agent);
-  while (!stack.empty()) {
-    const int u = stack.back();
-    stack.pop_back();
-    for (int v : (upward ? up_[u] : down_[u]))
+  stack_.assign(1, agent);
+  while (!stack_.empty()) {
+    const int u = stack_.back();
+    stack_.pop_back();
+    for (int v : higher_[u])
       if (mark_[v] != mark_stamp_) {
         mark_[v] = mark_stamp_;
         out.push_back(v);
-        stack.push_back(v);
+        stack_.push_back(v);
       }
   }
 }
 
-bool WindowedPBS::paths_conflict(const int* p, const int* q, int horizon) const {
-  for (int t = 1; t <= horizon; ++t) {
-    if (p[t] == q[t]) return true;
-    if (p[t] == q[t - 1] && p[t - 1] == q[t]) return true;
+// Is `higher` above `lower` in the current priority graph?
+bool WindowedPBS::connected(int lower, int higher) {
+  if (higher_[lower].empty()) return false;
+  higher_of(lower, scratch_);
+  return std::find(scratch_.begin(), scratch_.end(), higher) != scratch_.end();
+}
+
+// Can agents a and b come within `reach` of each other? Each moves at most `window` cells
+// from its start, so pairs whose starts are farther apart never interact.
+bool WindowedPBS::near(int a, int b, int reach) const {
+  const int ca = start_[a], cb = start_[b];
+  return grid_.manhattan(ca, cb) <= reach;
+}
+
+// RHCR's conflict test between two paths within the window: the first vertex conflict or
+// swap in time order.
+bool WindowedPBS::conflict_between(const Node& n, int a1, int a2, Conflict& c) const {
+  if (!near(a1, a2, 2 * window_)) return false;
+  const int* p = path(n, a1);
+  const int* q = path(n, a2);
+  for (int t = 0; t <= window_; ++t) {
+    if (p[t] == kAbsent || q[t] == kAbsent) return false;
+    if (p[t] == q[t]) {
+      c = {a1, a2, p[t], -1, t};
+      return true;
+    }
+    if (t < window_ && p[t + 1] != kAbsent && q[t + 1] != kAbsent && p[t] == q[t + 1] && q[t] == p[t + 1]) {
+      c = {a1, a2, p[t], q[t], t + 1};
+      return true;
+    }
   }
   return false;
 }
 
-// Earliest vertex or swap conflict among all agents within times 1..horizon.
-WindowedPBS::Conflict WindowedPBS::find_conflict(const Node& n, int horizon) {
-  const int cells = grid_.cells();
-  if (++occ_current_ == 0) {
-    std::fill(occ_stamp_.begin(), occ_stamp_.end(), 0);
-    occ_current_ = 1;
-  }
-  for (int a = 0; a < n_agents_; ++a) {
-    const int idx = path(n, a)[0];
-    occ_stamp_[idx] = occ_current_;
-    occ_agent_[idx] = a;
-  }
-  for (int t = 1; t <= horizon; ++t) {
-    for (int a = 0; a < n_agents_; ++a) {
-      const int* p = path(n, a);
-      const int idx = t * cells + p[t];
-      if (occ_stamp_[idx] == occ_current_) return {occ_agent_[idx], a, t};  // vertex conflict
-      occ_stamp_[idx] = occ_current_;
-      occ_agent_[idx] = a;
-    }
-    for (int a = 0; a < n_agents_; ++a) {
-      const int* p = path(n, a);
-      if (p[t] == p[t - 1]) continue;
-      const int prev = (t - 1) * cells + p[t];  // who stood at my destination a step before?
-      if (occ_stamp_[prev] != occ_current_) continue;
-      const int b = occ_agent_[prev];
-      if (b != a && path(n, b)[t] == p[t - 1]) return {std::min(a, b), std::max(a, b), t};  // swap
-    }
-  }
-  return {};
+void WindowedPBS::conflicts_of(const Node& n, int agent, std::vector<Conflict>& out) const {
+  Conflict c;
+  for (int b = 0; b < n_agents_; ++b)
+    if (b != agent && conflict_between(n, agent, b, c)) out.push_back(c);
 }
 
-// Replan one agent against the paths of every agent above it (priority graph must be built).
-bool WindowedPBS::replan(Node& n, int agent, const std::vector<AgentQuery>& queries) {
-  std::vector<int>& above = replan_above_;
-  collect(agent, true, above);
+// Does the path stay on `cell` from time 0 through t (and go on after t)?
+bool WindowedPBS::waits_at_start(const int* p, int cell, int t) const {
+  for (int s = 0; s <= t && s <= window_; ++s)
+    if (p[s] != cell) return false;
+  return t >= window_ || p[t + 1] != kAbsent;
+}
+
+// RHCR's choice of who gives way in each conflict (find_replan_agents).
+void WindowedPBS::add_replans(Node& n, const std::vector<Conflict>& conflicts, std::set<int>& replan) {
+  for (const Conflict& c : conflicts) {
+    if (replan.count(c.a1) || replan.count(c.a2)) continue;
+    if (prioritize_start_ && waits_at_start(path(n, c.a1), c.v1, c.t)) {
+      replan.insert(c.a2);
+    } else if (prioritize_start_ && waits_at_start(path(n, c.a2), c.v2, c.t)) {
+      replan.insert(c.a1);
+    } else if (connected(c.a1, c.a2)) {
+      replan.insert(c.a1);
+    } else if (connected(c.a2, c.a1)) {
+      replan.insert(c.a2);
+    }
+  }
+}
+
+// Plan `agent` against everyone above it and the start cells where agents [0, n_planned)
+// still wait; the priority graph must be the node's.
+bool WindowedPBS::find_path(Node& n, int agent, const std::vector<AgentQuery>& queries, int n_planned) {
   rt_.clear();
-  for (int a : above) rt_.add_path(grid_, path(n, a));
+  std::vector<int> above;
+  higher_of(agent, above);
+  for (int h : above)
+    if (near(agent, h, 2 * window_)) rt_.add_path(grid_, path(n, h));
+  if (prioritize_start_)
+    for (int i = 0; i < n_planned; ++i) {
+      if (i == agent || !near(agent, i, window_)) continue;
+      const int* p = path(n, i);
+      int leave = 1;
+      while (leave <= window_ && p[leave] == p[0]) ++leave;
+      rt_.add_wait(p[0], leave);
+    }
+  std::vector<int>& buf = scratch_path_;
+  buf.assign(window_ + 1, kAbsent);
   int cost = 0;
-  if (!astar_.plan(rt_, queries[agent], path(n, agent), cost)) return false;
+  bool ok = astar_.plan(rt_, queries[agent], buf.data(), cost, false);
+  if (!ok && prioritize_start_) ok = astar_.plan(rt_, queries[agent], buf.data(), cost, true);
+  if (!ok) return false;
+  std::copy(buf.begin(), buf.end(), path(n, agent));
   n.total_cost += cost - n.cost[agent];
   n.cost[agent] = cost;
+  if (!touched_flag_[agent]) {
+    touched_flag_[agent] = 1;
+    n.touched.push_back(agent);
+  }
   return true;
 }
 
-// PBS's UpdatePlan: replan `lower` and then, in topological order, each agent below it that
-// collides with an agent above it (the priority graph must be the child's).
-bool WindowedPBS::update_child(Node& child, int lower, const std::vector<AgentQuery>& queries) {
-  // Scratch kept between calls (no allocation per child); in_set_ and indeg_ are all zero
-  // outside this function.
-  std::vector<int>& below = below_;
-  collect(lower, false, below);
-  below.push_back(lower);
-  // Topological order of {lower} ∪ below, restricted to that set (Kahn's algorithm).
-  std::vector<int>&in_set = in_set_, &indeg = indeg_, &order = order_, &ready = ready_;
-  order.clear();
-  ready.clear();
-  for (int a : below) in_set[a] = 1;
-  for (int a : below)
-    for (int hi : up_[a])
-      if (in_set[hi]) ++indeg[a];
-  for (int a : below)
-    if (indeg[a] == 0) ready.push_back(a);
-  while (!ready.empty()) {
-    std::sort(ready.begin(), ready.end(), std::greater<>());
-    const int a = ready.back();
-    ready.pop_back();
-    order.push_back(a);
-    for (int lo : down_[a])
-      if (in_set[lo] && --indeg[lo] == 0) ready.push_back(lo);
-  }
-  for (int a : below) in_set[a] = indeg[a] = 0;
-  std::vector<int>& above = child_above_;
-  for (int a : order) {
-    bool needs = a == lower;
-    if (!needs) {
-      collect(a, true, above);
-      for (int hi : above)
-        if (paths_conflict(path(child, a), path(child, hi), window_)) {
-          needs = true;
-          break;
-        }
+// RHCR's find_consistent_paths: replan `agent` (if >= 0), then whoever must give way, until
+// no ordered pair (or start waiter) conflicts; fails past five replans per touched agent.
+bool WindowedPBS::make_consistent(Node& n, int agent, const std::vector<AgentQuery>& queries) {
+  build_graph(n);
+  for (int a : n.touched) touched_flag_[a] = 1;
+  std::set<int> replan;
+  if (agent >= 0) replan.insert(agent);
+  add_replans(n, n.conflicts, replan);
+  bool ok = true;
+  size_t count = 0;
+  std::vector<Conflict> fresh;
+  while (!replan.empty()) {
+    if (count > n.touched.size() * 5) {
+      ok = false;
+      break;
     }
-    if (needs && !replan(child, a, queries)) return false;
+    const int a = *replan.begin();
+    replan.erase(replan.begin());
+    ++count;
+    if (!find_path(n, a, queries, n_agents_)) {
+      ok = false;
+      break;
+    }
+    n.conflicts.erase(std::remove_if(n.conflicts.begin(), n.conflicts.end(),
+                                     [a](const Conflict& c) { return c.a1 == a || c.a2 == a; }),
+                      n.conflicts.end());
+    fresh.clear();
+    conflicts_of(n, a, fresh);
+    add_replans(n, fresh, replan);
+    n.conflicts.insert(n.conflicts.end(), fresh.begin(), fresh.end());
   }
-  return true;
+  for (int a : n.touched) touched_flag_[a] = 0;
+  return ok;
 }
 
-bool WindowedPBS::solve(const std::vector<AgentQuery>& queries, int executed_steps, int64_t max_nodes,
-                        std::chrono::steady_clock::time_point deadline, std::vector<int>& out) {
+// The earliest conflict (first of equals); a conflict of a nogood pair takes precedence.
+const WindowedPBS::Conflict& WindowedPBS::choose_conflict(Node& n) const {
+  const Conflict* best = &n.conflicts.front();
+  for (const Conflict& c : n.conflicts)
+    if (c.t < best->t) best = &c;
+  n.earliest = best->t;
+  if (!nogood_.empty())
+    for (const Conflict& c : n.conflicts)
+      if (nogood_.count({std::min(c.a1, c.a2), std::max(c.a1, c.a2)})) return c;
+  return *best;
+}
+
+bool WindowedPBS::out_of_time(const PbsLimits& limits, int64_t expanded, double cpu0) const {
+  if (limits.max_nodes > 0 && expanded >= limits.max_nodes) return true;
+  if (limits.time_limit_s > 0 && thread_cpu_seconds() - cpu0 > limits.time_limit_s) return true;
+  return std::chrono::steady_clock::now() > limits.deadline;
+}
+
+bool WindowedPBS::solve(const std::vector<AgentQuery>& queries, int executed_steps, const PbsLimits& limits,
+                        Rng& rng, std::vector<int>& out) {
+  const double cpu0 = thread_cpu_seconds();
   const int len = window_ + 1;
-  // Root: every agent planned alone.
+  prioritize_start_ = limits.prioritize_start;
+  nogood_.clear();
+  start_.resize(n_agents_);
+  for (int a = 0; a < n_agents_; ++a) start_[a] = queries[a].start;
+
+  // Root: every agent alone, in id order, avoiding the start cells of those planned before.
   auto root = std::make_unique<Node>();
-  root->paths.assign(n_agents_ * len, 0);
+  root->paths.assign(static_cast<size_t>(n_agents_) * len, kAbsent);
   root->cost.assign(n_agents_, 0);
-  rt_.clear();
-  bool root_ok = true;
-  for (int a = 0; a < n_agents_ && root_ok; ++a) {
-    int cost = 0;
-    root_ok = astar_.plan(rt_, queries[a], path(*root, a), cost);
-    root->cost[a] = cost;
-    root->total_cost += cost;
-  }
-  if (!root_ok) {
-    fallback(Node{root->paths, root->cost, {}, 0}, queries, executed_steps, out);
+  build_graph(*root);
+  for (int a = 0; a < n_agents_; ++a)
+    if (!find_path(*root, a, queries, a)) std::fill(path(*root, a), path(*root, a) + len, queries[a].start);
+  for (int a : root->touched) touched_flag_[a] = 0;
+  if (static_cast<int>(root->touched.size()) < n_agents_) {
+    repair(*root, queries, executed_steps, rng, out);
     return false;
   }
+  Conflict c;
+  for (int a = 0; a < n_agents_; ++a)
+    for (int b = a + 1; b < n_agents_; ++b)
+      if (conflict_between(*root, a, b, c)) root->conflicts.push_back(c);
+  if (!make_consistent(*root, -1, queries)) {
+    repair(*root, queries, executed_steps, rng, out);
+    return false;
+  }
+  if (root->conflicts.empty()) {
+    out = std::move(root->paths);
+    return true;
+  }
 
+  const int64_t min_cost = root->total_cost;
   std::vector<std::unique_ptr<Node>> stack;
   stack.push_back(std::move(root));
-  Node last;  // last expanded node, the fallback's priority order
+  Node best;  // best expanded node: latest first conflict, then smaller cost
+  bool have_best = false;
   int64_t expanded = 0;
   while (!stack.empty()) {
+    if (out_of_time(limits, expanded, cpu0)) {
+      if (!have_best) best = std::move(*stack.back());  // nothing expanded yet: the root
+      break;
+    }
     std::unique_ptr<Node> node = std::move(stack.back());
     stack.pop_back();
-    const Conflict c = find_conflict(*node, window_);
-    if (c.a < 0) {
+    if (node->conflicts.empty()) {
       out = std::move(node->paths);
       return true;
     }
-    if (expanded >= max_nodes || std::chrono::steady_clock::now() > deadline) {
-      stack.clear();
-      last = std::move(*node);
-      break;
-    }
+    const Conflict conflict = choose_conflict(*node);
     ++expanded;
     ++stats_.nodes_expanded;
 
     std::unique_ptr<Node> children[2];
-    build_adjacency(*node);
     for (int k = 0; k < 2; ++k) {
-      const int hi = k == 0 ? c.a : c.b;
-      const int lo = k == 0 ? c.b : c.a;
-      // The new pair must not contradict the existing order (lo already above hi).
-      std::vector<int> above_hi;
-      collect(hi, true, above_hi);
-      if (std::find(above_hi.begin(), above_hi.end(), lo) != above_hi.end()) continue;
-      auto child = std::make_unique<Node>(*node);
-      child->edges.emplace_back(hi, lo);
+      const int lower = k == 0 ? conflict.a1 : conflict.a2;
+      const int higher = k == 0 ? conflict.a2 : conflict.a1;
+      auto child = std::make_unique<Node>();
+      child->paths = node->paths;
+      child->cost = node->cost;
+      child->edges = node->edges;
+      child->edges.emplace_back(lower, higher);
+      child->conflicts = node->conflicts;
+      child->total_cost = node->total_cost;
+      if (!make_consistent(*child, lower, queries)) continue;
       ++stats_.nodes_generated;
-      push_edge(hi, lo);
-      if (update_child(*child, lo, queries)) children[k] = std::move(child);
-      pop_edge(hi, lo);
+      if (child->total_cost == min_cost && child->conflicts.empty()) {
+        out = std::move(child->paths);
+        return true;
+      }
+      children[k] = std::move(child);
     }
-    // Depth first, cheaper child on top of the stack.
-    if (children[0] && children[1] && children[0]->total_cost < children[1]->total_cost)
-      std::swap(children[0], children[1]);
-    for (auto& ch : children)
-      if (ch) stack.push_back(std::move(ch));
-    if (stack.empty()) last = std::move(*node);
+    if (!have_best || node->earliest > best.earliest ||
+        (node->earliest == best.earliest && node->total_cost < best.total_cost)) {
+      best = std::move(*node);
+      have_best = true;
+    }
+    if (children[0] && children[1]) {
+      const bool first_better =
+          children[0]->total_cost < children[1]->total_cost ||
+          (children[0]->total_cost == children[1]->total_cost &&
+           children[0]->conflicts.size() < children[1]->conflicts.size());
+      if (first_better) std::swap(children[0], children[1]);  // the better one on top
+      stack.push_back(std::move(children[0]));
+      stack.push_back(std::move(children[1]));
+    } else if (children[0] || children[1]) {
+      stack.push_back(std::move(children[0] ? children[0] : children[1]));
+    } else {
+      nogood_.insert({std::min(conflict.a1, conflict.a2), std::max(conflict.a1, conflict.a2)});
+    }
   }
-  fallback(last, queries, executed_steps, out);
+  repair(best, queries, executed_steps, rng, out);
   return false;
 }
 
-void WindowedPBS::fallback(const Node& n, const std::vector<AgentQuery>& queries, int executed_steps,
-                           std::vector<int>& out) {
-  const int len = window_ + 1;
-  // Total order: Kahn's algorithm on the node's partial order, smallest agent id first.
-  build_adjacency(n);
-  std::vector<int> indeg(n_agents_, 0), order;
-  for (int a = 0; a < n_agents_; ++a) indeg[a] = static_cast<int>(up_[a].size());
-  std::vector<int> ready;
-  for (int a = n_agents_ - 1; a >= 0; --a)
-    if (indeg[a] == 0) ready.push_back(a);
-  while (!ready.empty()) {
-    std::sort(ready.begin(), ready.end(), std::greater<>());
-    const int a = ready.back();
-    ready.pop_back();
-    order.push_back(a);
-    for (int lo : down_[a])
-      if (--indeg[lo] == 0) ready.push_back(lo);
+// RHCR's LRA* repair of a failed call, plus a swap check: execute `executed_steps` steps of
+// the node's paths, agents in a random order each step; an agent whose next cell is claimed
+// waits, and an agent that waits pushes back whoever claimed its cell.
+void WindowedPBS::repair(const Node& n, const std::vector<AgentQuery>& queries, int executed_steps, Rng& rng,
+                         std::vector<int>& out) {
+  const int len = window_ + 1, N = n_agents_, cells = grid_.cells();
+  out.assign(static_cast<size_t>(N) * len, 0);
+  std::vector<int> last(N), ptr(N, 1), order(N);
+  for (int a = 0; a < N; ++a) {
+    const int* p = n.paths.empty() ? nullptr : path(n, a);
+    int l = 0;
+    while (p && l + 1 < len && p[l + 1] != kAbsent) ++l;
+    last[a] = p ? l : 0;
+    out[a * len] = queries[a].start;
   }
-  std::vector<int> rank(n_agents_);
-  for (int i = 0; i < n_agents_; ++i) rank[order[i]] = i;
-
-  // Prioritized planning; an agent that cannot be planned waits in place.
-  out.assign(n_agents_ * len, 0);
-  std::vector<char> waiting(n_agents_, 0);
-  rt_.clear();
-  for (int a : order) {
-    int cost = 0;
-    int* p = out.data() + a * len;
-    if (!astar_.plan(rt_, queries[a], p, cost)) {
-      std::fill(p, p + len, queries[a].start);
-      waiting[a] = 1;
+  auto cell_of = [&](int a, int s) {
+    const int* p = n.paths.empty() ? nullptr : path(n, a);
+    return p ? p[std::min(s, last[a])] : queries[a].start;
+  };
+  std::vector<int> claim(cells, -1), before(cells, -1);
+  std::vector<char> decided(N, 0);
+  // Wait at the previous cell; whoever claimed that cell waits too (and gives back its step).
+  auto wait = [&](auto&& self, int a, int t) -> void {
+    const int cell = out[a * len + t - 1];
+    out[a * len + t] = cell;
+    const int other = claim[cell];
+    claim[cell] = a;
+    if (other >= 0 && other != a) {
+      self(self, other, t);
+      --ptr[other];
     }
-    rt_.add_path(grid_, p);
+  };
+  for (int t = 1; t <= executed_steps; ++t) {
+    for (int a = 0; a < N; ++a) before[out[a * len + t - 1]] = a;
+    std::iota(order.begin(), order.end(), 0);
+    for (int i = N - 1; i > 0; --i) std::swap(order[i], order[rng.below(i + 1)]);
+    std::fill(decided.begin(), decided.end(), 0);
+    for (int a : order) {
+      ptr[a] = std::min(ptr[a], last[a]);
+      const int next = cell_of(a, ptr[a]);
+      const int cur = out[a * len + t - 1];
+      decided[a] = 1;
+      if (next == cur) {
+        out[a * len + t] = cur;
+        ++ptr[a];
+        const int other = claim[cur];
+        claim[cur] = a;
+        if (other >= 0 && other != a) {
+          wait(wait, other, t);
+          --ptr[other];
+          claim[cur] = a;
+        }
+        continue;
+      }
+      const int b = before[next];
+      const bool swap = b >= 0 && b != a && decided[b] && out[b * len + t] == cur;
+      if (swap || claim[next] >= 0) {
+        wait(wait, a, t);
+      } else {
+        out[a * len + t] = next;
+        ++ptr[a];
+        claim[next] = a;
+      }
+    }
+    for (int a = 0; a < N; ++a) {
+      claim[out[a * len + t]] = -1;
+      before[out[a * len + t - 1]] = -1;
+    }
   }
-  // Repair: a waiter may block someone planned earlier. Turn the lower-ranked mover of each
-  // remaining conflict (within the executed steps) into a waiter until none is left.
-  Node view;
-  view.paths = std::move(out);
-  for (;;) {
-    const Conflict c = find_conflict(view, executed_steps);
-    if (c.a < 0) break;
-    int victim;
-    if (waiting[c.a]) victim = c.b;
-    else if (waiting[c.b]) victim = c.a;
-    else victim = rank[c.a] > rank[c.b] ? c.a : c.b;
-    if (waiting[victim]) break;  // two waiters cannot collide (distinct start cells)
-    int* p = path(view, victim);
-    std::fill(p, p + len, queries[victim].start);
-    waiting[victim] = 1;
-  }
-  out = std::move(view.paths);
+  for (int a = 0; a < N; ++a)
+    for (int s = executed_steps + 1; s < len; ++s) out[a * len + s] = out[a * len + executed_steps];
 }
 
 }  // namespace rhcr

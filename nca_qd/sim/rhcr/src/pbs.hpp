@@ -1,29 +1,39 @@
-// Windowed Priority-Based Search (Ma et al., AAAI 2019) as used by RHCR (Li et al., AAAI 2021).
+// Windowed Priority-Based Search (Ma et al., AAAI 2019) as used by RHCR (Li et al., AAAI 2021),
+// decision by decision as in RHCR's public implementation (PBS + prioritize_start):
 //
-// High level: a depth-first search over priority orderings. A node holds a partial order
-// (edges "hi before lo") and one windowed path per agent, each planned by space-time A*
-// against the paths of all agents above it. Expanding a node picks the earliest conflict
-// (a_i, a_j) and creates two children, "a_i before a_j" and "a_j before a_i"; a child
-// replans the lower agent and, in topological order, every agent below it whose path now
-// collides with someone above it. A child whose replanning fails is pruned; the cheaper
-// child is explored first. The search ends at the first conflict-free node, or fails when
-// the tree is exhausted, the node budget is spent or the deadline passes.
+// * Root: every agent planned alone (in id order, each avoiding the start cells where the
+//   agents planned before it still wait), then made consistent (below).
+// * A node holds a priority graph (edges "lower below higher"), one windowed path per agent
+//   and the list of all conflicts among its paths within the window (vertex, or swap).
+// * Expansion takes the earliest conflict (a pair that has exhausted both of its children
+//   before, a "nogood", is preferred) and makes two children, "a1 below a2" and "a2 below a1".
+//   A child replans its new lower agent and then, until nothing is left to replan, every agent
+//   of a new conflict that must give way: with prioritize_start, the one that runs into an
+//   agent still waiting on its start cell; otherwise the lower one of an ordered pair.
+//   Conflicts between unordered agents stay for later expansions. A child fails when an agent
+//   cannot be planned or when it replans more than five times per agent it touched.
+// * Depth first: of two children, the one with the smaller total cost (then fewer conflicts)
+//   is explored first. The search ends at the first conflict-free node.
+// * Every replanned agent avoids the paths of all agents above it and, with prioritize_start,
+//   the start cells of all other agents while they still wait there; it may itself keep
+//   waiting on its own start cell whatever the reservations say.
 //
-// Fallback on failure (documented contract: every executed step stays collision-free):
-// prioritized planning in the order of the last expanded node (its partial order extended
-// by agent id), where an agent that cannot be planned waits in place; then, while two
-// agents still collide within the executed steps, the lower one of them that moves is
-// turned into a waiter. Waiters never collide with each other (start cells are distinct),
-// so this terminates with a collision-free plan for the executed steps.
+// Failure (time limit, node budget or exhausted tree): the best node expanded (latest first
+// conflict, then smaller cost) is executed with the repair of RHCR's LRA*: step by step,
+// agents in a random order follow their paths, and one that would enter a cell claimed by
+// another this step waits, pushing back whoever claimed its own cell. Unlike RHCR's repair
+// it also refuses swaps, so every executed step stays collision-free.
 #pragma once
 
 #include <chrono>
 #include <cstdint>
+#include <set>
 #include <utility>
 #include <vector>
 
 #include "astar.hpp"
 #include "grid.hpp"
+#include "rng.hpp"
 
 namespace rhcr {
 
@@ -32,59 +42,72 @@ struct PbsStats {
   int64_t nodes_generated = 0;
 };
 
+struct PbsLimits {
+  int64_t max_nodes = 0;        // high-level nodes per call; <= 0: none
+  double time_limit_s = 60;     // CPU seconds per call; <= 0: none
+  std::chrono::steady_clock::time_point deadline = std::chrono::steady_clock::time_point::max();
+  bool prioritize_start = true;
+};
+
 class WindowedPBS {
  public:
   WindowedPBS(const Grid& grid, int n_agents, int window);
 
   // Plans paths[agent * (window + 1) + t]. Returns true when PBS found a conflict-free
-  // solution; false means the fallback plan was produced (collision-free for the first
-  // `executed_steps` steps).
-  bool solve(const std::vector<AgentQuery>& queries, int executed_steps, int64_t max_nodes,
-             std::chrono::steady_clock::time_point deadline, std::vector<int>& paths);
+  // solution; false means the repaired best node (collision-free for `executed_steps`).
+  bool solve(const std::vector<AgentQuery>& queries, int executed_steps, const PbsLimits& limits,
+             Rng& rng, std::vector<int>& paths);
 
   const PbsStats& stats() const { return stats_; }
   int64_t low_level_expansions() const { return astar_.expansions(); }
 
  private:
-  struct Node {
-    std::vector<int> paths;                   // n_agents * (window + 1)
-    std::vector<int> cost;                    // per agent, from A*
-    std::vector<std::pair<int, int>> edges;   // (higher, lower) priority pairs
-    int64_t total_cost = 0;
-  };
   struct Conflict {
-    int a = -1, b = -1, t = -1;
+    int a1 = -1, a2 = -1, v1 = -1, v2 = -1, t = -1;  // v2 >= 0: swap along (v1, v2)
+  };
+  struct Node {
+    std::vector<int> paths;                   // n_agents * (window + 1), kAbsent after the end
+    std::vector<int> cost;                    // per agent, from A*
+    std::vector<std::pair<int, int>> edges;   // (lower, higher)
+    std::vector<Conflict> conflicts;
+    std::vector<int> touched;                 // agents replanned in this node (root: all)
+    int64_t total_cost = 0;
+    int earliest = 1 << 30;                   // time of the chosen conflict, once expanded
   };
 
   const int* path(const Node& n, int agent) const { return n.paths.data() + agent * (window_ + 1); }
   int* path(Node& n, int agent) { return n.paths.data() + agent * (window_ + 1); }
 
-  void build_adjacency(const Node& n);
-  void push_edge(int hi, int lo);
-  void pop_edge(int hi, int lo);
-  void collect(int agent, bool upward, std::vector<int>& out);  // ancestors or descendants
-  bool paths_conflict(const int* p, const int* q, int horizon) const;
-  Conflict find_conflict(const Node& n, int horizon);
-  bool replan(Node& n, int agent, const std::vector<AgentQuery>& queries);
-  bool update_child(Node& child, int lower, const std::vector<AgentQuery>& queries);
-  void fallback(const Node& n, const std::vector<AgentQuery>& queries, int executed_steps,
-                std::vector<int>& paths);
+  void build_graph(const Node& n);
+  void higher_of(int agent, std::vector<int>& out);
+  bool connected(int lower, int higher);
+  bool near(int a, int b, int reach) const;
+  bool conflict_between(const Node& n, int a1, int a2, Conflict& c) const;
+  void conflicts_of(const Node& n, int agent, std::vector<Conflict>& out) const;
+  bool waits_at_start(const int* p, int cell, int t) const;
+  void add_replans(Node& n, const std::vector<Conflict>& conflicts, std::set<int>& replan);
+  bool find_path(Node& n, int agent, const std::vector<AgentQuery>& queries, int n_planned);
+  bool make_consistent(Node& n, int agent, const std::vector<AgentQuery>& queries);
+  const Conflict& choose_conflict(Node& n) const;
+  bool out_of_time(const PbsLimits& limits, int64_t expanded, double cpu0) const;
+  void repair(const Node& best, const std::vector<AgentQuery>& queries, int executed_steps, Rng& rng,
+              std::vector<int>& out);
 
   const Grid& grid_;
   int n_agents_, window_;
+  bool prioritize_start_ = true;
   SpaceTimeAStar astar_;
   ReservationTable rt_;
   PbsStats stats_;
-  // Scratch: priority graph of the node being processed, and stamped marks.
-  std::vector<std::vector<int>> up_, down_;
-  std::vector<int> touched_;
+  std::set<std::pair<int, int>> nogood_;
+  // Priority graph of the node being processed: higher_[a] lists agents directly above a.
+  std::vector<std::vector<int>> higher_;
+  std::vector<int> graph_agents_;
   std::vector<uint32_t> mark_;
-  std::vector<int> in_set_, indeg_;  // update_child: all zero between calls
-  std::vector<int> stack_, below_, order_, ready_, child_above_, replan_above_;  // scratch
   uint32_t mark_stamp_ = 0;
-  std::vector<uint32_t> occ_stamp_;
-  std::vector<int> occ_agent_;
-  uint32_t occ_current_ = 0;
+  std::vector<int> stack_, scratch_, scratch_path_;
+  std::vector<char> touched_flag_;
+  std::vector<int> start_;  // each agent's start cell in the current call
 };
 
 }  // namespace rhcr

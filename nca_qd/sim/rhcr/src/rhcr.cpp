@@ -6,6 +6,7 @@
 #include <chrono>
 #include <deque>
 #include <numeric>
+#include <random>
 #include <stdexcept>
 #include <string>
 
@@ -57,6 +58,7 @@ struct AgentState {
   std::deque<Goal> queue;   // upcoming goals, front first
   bool arrived = false;     // standing on queue.front() since arriving (dwell in progress)
   int stayed = 0;           // timesteps stayed on queue.front() after arriving
+  bool tasking = false;     // the last executed step was a dwell step at a station
 };
 
 void validate(const SimConfig& cfg) {
@@ -101,25 +103,39 @@ SimResult simulate(const SimConfig& cfg) {
   Rng rng(cfg.seed);
   TaskAssigner assigner(cfg, rng);
   WindowedPBS pbs(grid, N, w);
-  const int64_t max_nodes = cfg.pbs_max_nodes > 0 ? cfg.pbs_max_nodes : std::max<int64_t>(2000, 10LL * N);
+  PbsLimits limits;
+  // Automatic node budget: RHCR's 60 s cutoff in the reference's own effort. Its high-level
+  // nodes cost 6-26 ms each at 1,400 agents (950-1,920 nodes in 6-50 s per call), so the
+  // cutoff admits about 5,000 of them there; a node's cost grows with the number of agents.
+  limits.max_nodes = cfg.pbs_max_nodes > 0 ? cfg.pbs_max_nodes
+                     : cfg.pbs_max_nodes == 0 ? std::max<int64_t>(1000, 7000000 / N)
+                                              : 0;
+  limits.time_limit_s = cfg.plan_time_limit_s;
+  limits.deadline = deadline;
+  limits.prioritize_start = cfg.prioritize_start;
+  Rng repair_rng(cfg.seed ^ 0x5DEECE66DULL);  // the failed-call repair's own stream
+  bool dwell_goals = false;
+  for (const auto& cls : cfg.classes) dwell_goals = dwell_goals || cls.dwell > 0;
 
   SimResult res;
   res.tasks_per_step.assign(T, 0);
   res.tile_visits.assign(grid.cells(), 0);
   std::vector<std::vector<Goal>> goal_log(N);
 
-  // Initial cells: distinct, uniform over traversable tiles (partial Fisher-Yates).
+  // Initial cells: distinct, uniform over traversable tiles (partial Fisher-Yates, per seed);
+  // or, with reference_starts, the reference's: its traversable cells in row-major order
+  // shuffled by an unseeded std::default_random_engine, the same for every seed.
   std::vector<int> free_cells;
   for (int c = 0; c < grid.cells(); ++c)
     if (grid.traversable(c)) free_cells.push_back(c);
   std::vector<AgentState> agents(N);
+  if (cfg.reference_starts) std::shuffle(free_cells.begin(), free_cells.end(), std::default_random_engine());
   for (int a = 0; a < N; ++a) {
-    const size_t j = a + rng.below(free_cells.size() - a);
-    std::swap(free_cells[a], free_cells[j]);
+    if (!cfg.reference_starts) std::swap(free_cells[a], free_cells[a + rng.below(free_cells.size() - a)]);
     agents[a].cell = free_cells[a];
   }
-  // First goal kind: uniform over the cycle, so agents do not all start with the same kind.
-  for (auto& ag : agents) ag.phase = static_cast<int>(rng.below(cfg.cycle.size()));
+  // Every agent's first goal is of the cycle's first kind (RHCR: an endpoint in the warehouse,
+  // a kind-0 station in manufacturing).
 
   if (cfg.record_paths) {
     res.paths.reserve(static_cast<size_t>(T + 1) * N);
@@ -134,19 +150,18 @@ SimResult simulate(const SimConfig& cfg) {
       res.timed_out = true;
       break;
     }
-    // 1. Top up goal queues: append while the Manhattan length of the queue is <= h, so an
-    //    agent cannot run out of goals during the h executed steps.
+    // 1. Top up goal queues (RHCR's rule): append while the Manhattan distance from the agent
+    //    to its last goal, plus the legs and dwells after it, is <= h; with dwell goals, keep
+    //    at least two goals.
     for (int a = 0; a < N; ++a) {
       AgentState& ag = agents[a];
-      int length = 0, prev = ag.cell;
-      for (const Goal& g : ag.queue) {
-        length += grid.manhattan(prev, g.cell);
-        prev = g.cell;
-      }
-      while (ag.queue.empty() || (length <= h && ag.queue.size() < kMaxQueue)) {
+      Goal last = ag.queue.empty() ? Goal{ag.cell, 0} : ag.queue.back();
+      int length = grid.manhattan(last.cell, ag.cell) + last.dwell;
+      while (ag.queue.empty() ||
+             ((length <= h || (dwell_goals && ag.queue.size() < 2)) && ag.queue.size() < kMaxQueue)) {
         const Goal g = assigner.next(ag.phase);
-        length += grid.manhattan(prev, g.cell);
-        prev = g.cell;
+        length += grid.manhattan(g.cell, last.cell) + last.dwell;
+        last = g;
         ag.queue.push_back(g);
         goal_log[a].push_back(g);
       }
@@ -158,31 +173,49 @@ SimResult simulate(const SimConfig& cfg) {
       for (const Goal& g : ag.queue) q.dist.push_back(distances.get(g.cell));
     }
 
-    // 2. Plan windowed paths (PBS, or its collision-free fallback).
+    // 2. Plan windowed paths (PBS, or its collision-free repair).
     const int steps = std::min(h, T - t);
-    if (!pbs.solve(queries, steps, max_nodes, deadline, plan)) ++res.pbs_failures;
+    for (auto& q : queries) q.min_end = steps;
+    const double call_cpu0 = thread_cpu_seconds();
+    const int64_t call_nodes0 = pbs.stats().nodes_expanded;
+    const bool solved = pbs.solve(queries, steps, limits, repair_rng, plan);
+    res.pbs_failures += !solved;
+    res.call_failed.push_back(!solved);
+    res.call_nodes.push_back(static_cast<int32_t>(pbs.stats().nodes_expanded - call_nodes0));
+    res.call_cpu_seconds.push_back(thread_cpu_seconds() - call_cpu0);
     ++res.replans;
+    if (limited && std::chrono::steady_clock::now() > deadline) {  // the call was cut short
+      res.timed_out = true;
+      break;
+    }
 
-    // 3. Execute the first h steps; count goals reached; watch for congestion.
-    std::vector<char> active(N, 0);  // moved, or dwelling at a station, during these steps
+    // 3. Execute the first h steps; count goals reached; watch for congestion. RHCR counts an
+    //    agent as stuck when it stood on one cell, not dwelling at a station, at times
+    //    t .. t+h-1 of this round.
+    std::vector<int> round_start(N);
+    std::vector<char> stuck(N);
+    for (int a = 0; a < N; ++a) {
+      round_start[a] = agents[a].cell;
+      stuck[a] = !agents[a].tasking;
+    }
     for (int s = 1; s <= steps; ++s) {
       int finished = 0;
       for (int a = 0; a < N; ++a) {
         AgentState& ag = agents[a];
         const int next = plan[a * (w + 1) + s];
-        if (next != ag.cell) active[a] = 1;
         ag.cell = next;
+        ag.tasking = false;
         ++res.tile_visits[next];
         if (cfg.record_paths) res.paths.push_back(next);
         // Goal bookkeeping (same rules as the A* model and the Python checker).
         if (ag.queue.empty() || ag.queue.front().cell != ag.cell) {
           ag.arrived = false;
-          continue;
+        } else {
+          if (ag.arrived) ++ag.stayed, ag.tasking = ag.queue.front().dwell > 0;
+          else ag.arrived = true, ag.stayed = 0;
         }
-        if (ag.arrived) ++ag.stayed;
-        else ag.arrived = true, ag.stayed = 0;
+        if (s < h && (next != round_start[a] || ag.tasking)) stuck[a] = 0;
         while (ag.arrived && ag.stayed >= ag.queue.front().dwell) {
-          if (ag.queue.front().dwell > 0) active[a] = 1;
           ag.queue.pop_front();
           ++finished;
           ag.arrived = false;
@@ -193,15 +226,14 @@ SimResult simulate(const SimConfig& cfg) {
           }
           if (ag.queue.front().cell == ag.cell) ag.arrived = true, ag.stayed = 0;
         }
-        if (ag.arrived && ag.queue.front().dwell > 0) active[a] = 1;  // dwelling
       }
       res.tasks_per_step[t + s - 1] = finished;
       res.finished_tasks += finished;
     }
     t += steps;
-    // 4. Congestion: more than half of the agents neither moved nor dwelled at a station.
-    const int stuck = N - static_cast<int>(std::count(active.begin(), active.end(), 1));
-    if (2 * stuck > N) {
+    // 4. Congestion: more than half of the agents stuck.
+    const int n_stuck = static_cast<int>(std::count(stuck.begin(), stuck.end(), 1));
+    if (2 * n_stuck > N) {
       res.congested = true;
       break;
     }

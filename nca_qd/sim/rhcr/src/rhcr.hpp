@@ -2,7 +2,8 @@
 //
 // Every `replan` (h) timesteps: top up each agent's goal queue, plan windowed collision-free
 // paths for the next `window` (w) timesteps with PBS, execute the first h steps, count the
-// goals reached, and stop early on congestion.
+// goals reached, and stop early on congestion. The task model, the goal-queue horizon and the
+// congestion rule are those of RHCR's public implementation as the paper ran it.
 #pragma once
 
 #include <cstdint>
@@ -30,8 +31,12 @@ struct SimConfig {
   uint64_t seed = 0;
   int window = 10;   // w
   int replan = 5;    // h
-  double time_limit_s = 0;  // <= 0: none
-  int64_t pbs_max_nodes = 0;  // <= 0: automatic
+  double time_limit_s = 0;         // whole run, wall-clock seconds; <= 0: none
+  double plan_time_limit_s = 60;   // one planning call, CPU seconds (RHCR's cutoffTime); <= 0: none
+  int64_t pbs_max_nodes = 0;       // high-level PBS nodes per planning call; 0: automatic
+                                   // (7,000,000 / agents, at least 1,000); < 0: none
+  bool prioritize_start = true;    // RHCR's prioritize_start
+  bool reference_starts = false;   // start cells as the reference draws them (below)
   bool record_paths = false;
 };
 
@@ -47,6 +52,9 @@ struct SimResult {
   std::vector<int32_t> paths;           // (stop_time + 1) * n_agents cells, if recorded
   std::vector<int32_t> goal_offsets;    // n_agents + 1: agent a's goals are [off[a], off[a+1])
   std::vector<int32_t> goal_cells, goal_dwell;  // every goal assigned, in order
+  std::vector<int32_t> call_nodes;        // per planning call: high-level PBS nodes expanded
+  std::vector<double> call_cpu_seconds;   // per planning call: CPU seconds
+  std::vector<uint8_t> call_failed;       // per planning call: 1 if PBS failed (repaired)
   int replans = 0;
   int pbs_failures = 0;
   int64_t pbs_nodes = 0;
