@@ -331,6 +331,24 @@ def test_memo_survives_a_file_and_a_resume_drops_later_entries(tmp_path):
     assert len(EvalMemo.load(tmp_path / "bad.npz", "settings A")) == 0
 
 
+def test_results_of_another_planner_are_never_reused(tiny_scorer, tmp_path):
+    """The memo's fingerprint names the exact simulator's version: a memo written under
+    another version is not loaded."""
+    import json
+
+    from nca_qd.scoring.memo import EvalMemo
+    from nca_qd.sim.rhcr import VERSION
+
+    scorer = tiny_scorer[3]
+    settings = json.loads(scorer.fingerprint)
+    assert settings["rhcr_version"] == VERSION
+    old = EvalMemo(json.dumps({**settings, "rhcr_version": VERSION - 1}, sort_keys=True))
+    _memo_entries(old)
+    old.save(tmp_path / "m.npz")
+    assert EvalMemo.load(tmp_path / "m.npz", scorer.fingerprint).exact(b"\x03" * 20) is None
+    assert EvalMemo.load(tmp_path / "m.npz", old.fingerprint).exact(b"\x03" * 20) is not None
+
+
 def test_memo_repairs_and_simulates_each_distinct_layout_once(tiny_scorer):
     """Copies in one batch share one repair and one set of exact runs; a later batch takes
     remembered results without any job; each copy scores exactly as its original."""

@@ -47,6 +47,7 @@ from nca_qd.io import array_to_rows
 from nca_qd.scoring.backend import JobFailed, make_backend, map_jobs
 from nca_qd.scoring.memo import MEMO_FILE, EvalMemo, first_of_each, layout_key
 from nca_qd.scoring.tasks import ExactOutcome, RepairOutcome, repair_options, repair_task, rhcr_task
+from nca_qd.sim.rhcr import VERSION as RHCR_VERSION
 
 log = logging.getLogger(__name__)
 
@@ -144,11 +145,12 @@ class MapfScorer:
         self.repair_opts = repair_options(dcfg, "train")
         self.backend = make_backend(run_cfg.get("eval"))
         # What remembered results depend on: a memo made under other settings is not used.
-        fingerprint = json.dumps({"domain": domain.name, "n_agents": self.n_agents, "T": self.T,
-                                  "n_runs": self.n_runs, "repair": self.repair_opts,
-                                  "exact_time_limit_s": self.cfg.exact_time_limit_s},
-                                 sort_keys=True, default=str)
-        self.memo: EvalMemo | None = EvalMemo(fingerprint) if self.cfg.memo else None
+        self.fingerprint = json.dumps({"domain": domain.name, "n_agents": self.n_agents, "T": self.T,
+                                       "n_runs": self.n_runs, "repair": self.repair_opts,
+                                       "exact_time_limit_s": self.cfg.exact_time_limit_s,
+                                       "rhcr_version": RHCR_VERSION},
+                                      sort_keys=True, default=str)
+        self.memo: EvalMemo | None = EvalMemo(self.fingerprint) if self.cfg.memo else None
         log.info("%s scoring: %s; screen %s, exact %s", domain.name, self.backend.describe(),
                  "on" if self.cfg.screen else "off", self.cfg.exact)
 
