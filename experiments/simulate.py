@@ -46,6 +46,26 @@ class RunSettings:
         threads = None if cfg.threads is None else _int(cfg, "threads", minimum=1)
         self.threads = threads or len(os.sched_getaffinity(0))
         self.record_paths = cfg.paths_out is not None
+        self.rhcr = rhcr_options(cfg)
+
+
+def rhcr_options(cfg: DictConfig) -> dict:
+    """The exact planner's knobs (``plan_time_limit_s``, ``pbs_max_nodes``, ``prioritize_start``),
+    validated; keys missing from ``cfg`` keep the simulator's defaults (RHCR as the paper ran it)."""
+    out: dict = {}
+    if "plan_time_limit_s" in cfg:
+        out["plan_time_limit_s"] = None if cfg.plan_time_limit_s is None else _float(cfg, "plan_time_limit_s")
+    if "pbs_max_nodes" in cfg:
+        nodes = cfg.pbs_max_nodes
+        if not (nodes is None or nodes == "auto" or (isinstance(nodes, int) and not isinstance(nodes, bool)
+                                                      and nodes > 0)):
+            raise NcaQdError(f"pbs_max_nodes must be a positive integer, auto or null, got {nodes!r}")
+        out["pbs_max_nodes"] = nodes
+    if "prioritize_start" in cfg:
+        if not isinstance(cfg.prioritize_start, bool):
+            raise NcaQdError(f"prioritize_start must be true or false, got {cfg.prioritize_start!r}")
+        out["prioritize_start"] = cfg.prioritize_start
+    return out
 
 
 def _rhcr(scen: Scenario, s: RunSettings, seeds: list[int]) -> Iterator:
@@ -53,7 +73,7 @@ def _rhcr(scen: Scenario, s: RunSettings, seeds: list[int]) -> Iterator:
 
     def one(seed: int):
         return simulate_scenario(scen, s.agents, s.T, seed, window=s.window, replan=s.replan,
-                                 time_limit_s=s.time_limit_s, record_paths=s.record_paths)
+                                 time_limit_s=s.time_limit_s, record_paths=s.record_paths, **s.rhcr)
 
     with ThreadPoolExecutor(max_workers=max(1, min(s.threads, len(seeds)))) as pool:
         yield from pool.map(one, seeds)  # the core releases the GIL: runs are parallel

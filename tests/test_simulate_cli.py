@@ -68,6 +68,9 @@ def test_prints_one_line_per_run_and_a_summary(tmp_path):
     (WAREHOUSE, ["T=-5"], "T must be >= 1"),
     (WAREHOUSE, ["simulator=quantum"], "unknown simulator 'quantum'"),
     (WAREHOUSE, ["domain=manufacturing"], "unknown tile"),
+    (WAREHOUSE, ["pbs_max_nodes=-3"], "pbs_max_nodes must be a positive integer, auto or null"),
+    (WAREHOUSE, ["plan_time_limit_s=0"], "plan_time_limit_s must be a positive number"),
+    (WAREHOUSE, ["prioritize_start=maybe"], "prioritize_start must be true or false"),
 ])
 def test_bad_input_is_one_line_exit_2(tmp_path, rows, args, message):
     layout = write_map(tmp_path / "m.json", rows)
