@@ -1,22 +1,12 @@
 #include "pbs.hpp"
 
-#include <time.h>
-
 #include <algorithm>
-#include <cstdlib>
 #include <memory>
 #include <numeric>
 
+#include "cpu_clock.hpp"
+
 namespace rhcr {
-namespace {
-
-double thread_cpu_seconds() {
-  timespec ts{};
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
-}
-
-}  // namespace
 
 WindowedPBS::WindowedPBS(const Grid& grid, int n_agents, int window)
     : grid_(grid),
@@ -126,7 +116,7 @@ void WindowedPBS::add_replans(Node& n, const std::vector<Conflict>& conflicts, s
 // still wait; the priority graph must be the node's.
 bool WindowedPBS::find_path(Node& n, int agent, const std::vector<AgentQuery>& queries, int n_planned) {
   rt_.clear();
-  std::vector<int> above;
+  std::vector<int>& above = above_;
   higher_of(agent, above);
   for (int h : above)
     if (near(agent, h, 2 * window_)) rt_.add_path(grid_, path(n, h));

@@ -105,7 +105,7 @@ class WindowedPBS {
   std::vector<int> graph_agents_;
   std::vector<uint32_t> mark_;
   uint32_t mark_stamp_ = 0;
-  std::vector<int> stack_, scratch_, scratch_path_;
+  std::vector<int> stack_, scratch_, scratch_path_, above_;
   std::vector<char> touched_flag_;
   std::vector<int> start_;  // each agent's start cell in the current call
 };

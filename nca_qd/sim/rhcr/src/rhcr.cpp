@@ -1,7 +1,5 @@
 #include "rhcr.hpp"
 
-#include <time.h>
-
 #include <algorithm>
 #include <chrono>
 #include <deque>
@@ -10,6 +8,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "cpu_clock.hpp"
 #include "grid.hpp"
 #include "pbs.hpp"
 #include "rng.hpp"
@@ -19,12 +18,6 @@ namespace {
 
 // Bound on the goal queue (only reachable when goals of consecutive kinds share cells).
 constexpr size_t kMaxQueue = 32;
-
-double thread_cpu_seconds() {
-  timespec ts{};
-  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
-  return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
-}
 
 // Draws each agent's next goal: class ids cycle, the cell is drawn by the class weights.
 class TaskAssigner {
