@@ -1,6 +1,6 @@
 """``make bench``: every benchmark section in turn (each prints its own figures).
 
-    python -m benchmarks.run_all [section ...]   # sections: foundation, rhcr, repair, screen, search
+    python -m benchmarks.run_all [section ...]   # sections: foundation, rhcr, repair, screen, search, checkpoint
 """
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import importlib
 import sys
 import time
 
-SECTIONS = ["foundation", "rhcr", "repair", "screen", "search"]
+SECTIONS = ["foundation", "rhcr", "repair", "screen", "search", "checkpoint"]
 
 
 def main(argv: list[str]) -> int:

@@ -985,7 +985,7 @@ def select_scalable(e, d, domain, archive, pool: np.ndarray, plan: _Plan,
     c_eval, size = int(d["nca_iters"]["eval"]), size_str(plan.s_eval)
     objective = np.asarray(archive["objective"])
     lays, secs = generate_timed(domain, make_generator(domain),
-                                np.asarray(archive["genotypes"])[pool], plan.s_eval, c_eval)
+                                archive["genotypes"][pool], plan.s_eval, c_eval)
     items = [EvalLayout(f"nca_c{int(c)}@{size}", f"NCA (cell {int(c)})", "nca", size, "eval",
                         None, lay, int(c), c_eval, sec) for c, lay, sec in zip(pool, lays, secs)]
     log.info("selecting %d of %d generator(s) by a screening run at %s (%d agents, %d "
@@ -1059,7 +1059,7 @@ def _build_layouts(e, d, domain, archive, cells_idx, plan: _Plan, backend,
 
     name, tiles = domain.name, domain.layout_tiles
     generator = make_generator(domain)
-    genotypes = np.asarray(archive["genotypes"])[cells_idx]
+    genotypes = np.asarray(archive["genotypes"][cells_idx])
     layouts: dict[str, EvalLayout] = {}
     sizes = list(dict.fromkeys([plan.s_train, plan.s_eval, *plan.extra]))
     c_train, c_eval = int(d["nca_iters"]["train"]), int(d["nca_iters"]["eval"])

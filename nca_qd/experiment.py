@@ -5,18 +5,24 @@ A run directory holds
 * ``config.yaml``: the resolved configuration (a resumed run reuses it);
 * ``metrics.csv``: one row per iteration (result archive's ``qd_score``, ``coverage``,
   ``best_objective``; the optimisation archive's as ``opt_*``; ``evaluations``, ``wall_seconds``);
-* ``checkpoint.msgpack``: the whole QD state (archives, emitters, key, counters), written
-  atomically every ``qd.checkpoint_every`` iterations, at the end and on Ctrl-C;
+* ``checkpoint.npz``: the QD state (archives as their elites, emitters, key, counters) in the
+  sparse format of :mod:`nca_qd.qd.checkpoint`, written atomically every
+  ``qd.checkpoint_every`` iterations, at the end and on Ctrl-C (``checkpoint.exact`` chooses
+  a bit-exact or a compact emitter state); a ``checkpoint.msgpack`` of earlier versions
+  (dense) still resumes, and is replaced by the first new checkpoint;
 * ``eval_memo.npz`` (warehouse, manufacturing): the repairs and exact runs already made,
   written just before each checkpoint (:mod:`nca_qd.scoring.memo`);
-* ``archive_result.npz`` / ``archive_opt.npz``: plain arrays of both archives, written at the
-  end (:func:`load_archive` reads a running run's checkpoint instead);
+* ``archive_result.npz`` / ``archive_opt.npz``: both archives as their elites
+  (:mod:`nca_qd.qd.archive_io`), written at the end (:func:`load_archive` reads a running
+  run's checkpoint instead);
 * pictures: ``archive_result.png``, ``archive_opt.png``, ``curves.png``, ``best_train.png`` and
   ``best_eval.png`` (the same generators at the training and the evaluation size) and, for
   domains with repair, ``best_train_repaired.png`` / ``best_eval_repaired.png``.
 
-Everything is deterministic given ``seed``: a resumed run replays from its last checkpoint and
-ends where an uninterrupted run ends.
+Everything is deterministic given ``seed``. With ``checkpoint.exact=true`` a resumed run replays
+from its last checkpoint and ends where an uninterrupted run ends; the default compact
+checkpoint resumes the same search up to the covariance it leaves out and the rounding of
+restart points (tests/test_checkpoint.py).
 """
 
 from __future__ import annotations
@@ -34,10 +40,10 @@ from omegaconf import DictConfig, OmegaConf
 
 from nca_qd.domains import Domain, make_domain
 from nca_qd.errors import NcaQdError
-from nca_qd.io import atomic_write_text, load_pytree, save_npz, save_pytree
+from nca_qd.io import atomic_write_text, load_pytree
 from nca_qd.pipeline import generate, make_generator, make_objective
-from nca_qd.qd.loop import (QDLoop, QDState, archive_arrays, archive_fields_to_arrays,
-                            archive_spec, make_emitter)
+from nca_qd.qd import archive_io, checkpoint
+from nca_qd.qd.loop import QDLoop, QDState, archive_fields_to_arrays, archive_spec, make_emitter
 
 log = logging.getLogger("nca_qd.run")
 
@@ -46,7 +52,8 @@ METRIC_COLUMNS = [
     "opt_qd_score", "opt_coverage", "opt_best_objective", "batch_best", "batch_added",
     "step_seconds", "wall_seconds",
 ]
-CONFIG_FILE, METRICS_FILE, CHECKPOINT_FILE = "config.yaml", "metrics.csv", "checkpoint.msgpack"
+CONFIG_FILE, METRICS_FILE, CHECKPOINT_FILE = "config.yaml", "metrics.csv", "checkpoint.npz"
+LEGACY_CHECKPOINT_FILE = "checkpoint.msgpack"  # dense msgpack of earlier versions
 
 
 def validate_config(cfg: DictConfig) -> None:
@@ -93,6 +100,10 @@ class Experiment:
         # The scorer's own per-iteration figures (exact runs, screen error, stage timings).
         self.metric_columns = METRIC_COLUMNS + list(self.objective.metric_names)
         self.n_iterations = math.ceil(cfg.qd.n_evals / self.loop.batch_size)
+        self.checkpoint_policy = checkpoint.CheckpointPolicy.from_config(
+            OmegaConf.to_container(cfg.checkpoint) if cfg.get("checkpoint") is not None else None)
+        # What the checkpoint's results depend on beyond the config (the exact simulator).
+        self.simulator = getattr(self.objective.evaluator, "simulator_version", None)
 
     # --- state on disk -------------------------------------------------------------------
     def initial_state(self) -> QDState:
@@ -101,17 +112,39 @@ class Experiment:
     def save_checkpoint(self, state: QDState, wall: float) -> None:
         # The scorer's memo first: on resume it is cut back to the checkpoint's iteration,
         # so a kill between the two writes loses nothing and replays the same search.
+        t0 = time.perf_counter()
         self.objective.save_state(self.run_dir)
-        save_pytree(self.run_dir / CHECKPOINT_FILE,
-                    {"state": state, "wall_seconds": np.float64(wall)})
+        meta = {"wall_seconds": float(wall), "algo": str(self.cfg.algo.name),
+                "domain": str(self.cfg.domain.name), "dim": int(self.loop.dim),
+                "simulator": self.simulator}
+        checkpoint.save_checkpoint(self.run_dir / CHECKPOINT_FILE, state, self.loop.emitter,
+                                   self.checkpoint_policy, meta)
+        legacy = self.run_dir / LEGACY_CHECKPOINT_FILE
+        if legacy.exists():  # superseded by the sparse checkpoint just written
+            legacy.unlink()
+            log.info("replaced the dense %s by %s", LEGACY_CHECKPOINT_FILE, CHECKPOINT_FILE)
+        log.debug("checkpoint written in %.2f s", time.perf_counter() - t0)
 
     def load_checkpoint(self) -> tuple[QDState, float]:
         path = self.run_dir / CHECKPOINT_FILE
-        if not path.is_file():
+        legacy = self.run_dir / LEGACY_CHECKPOINT_FILE
+        if path.is_file():
+            state, meta = checkpoint.load_checkpoint(path, self.initial_state(), self.loop.emitter)
+            saved = meta.get("simulator")
+            if saved is not None and self.simulator is not None and saved != self.simulator:
+                raise NcaQdError(
+                    f"{path} was scored with exact simulator {saved}, this nca-qd has "
+                    f"{self.simulator}: its archive would mix two simulators; start a new run "
+                    "(or use the nca-qd version that made it)")
+            wall = float(meta.get("wall_seconds", 0.0))
+        elif legacy.is_file():
+            log.info("resuming from a dense %s of an earlier version", LEGACY_CHECKPOINT_FILE)
+            tree = load_pytree(legacy, {"state": self.initial_state(), "wall_seconds": np.float64(0)})
+            state, wall = tree["state"], float(tree["wall_seconds"])
+        else:
             raise NcaQdError(f"{self.run_dir}: no checkpoint to resume from ({CHECKPOINT_FILE} missing)")
-        tree = load_pytree(path, {"state": self.initial_state(), "wall_seconds": np.float64(0)})
-        self.objective.restore_state(self.run_dir, int(tree["state"].iteration))
-        return tree["state"], float(tree["wall_seconds"])
+        self.objective.restore_state(self.run_dir, int(state.iteration))
+        return state, wall
 
     def _metrics_rows(self, upto: int) -> list[dict[str, str]]:
         path = self.run_dir / METRICS_FILE
@@ -185,14 +218,16 @@ class Experiment:
     # --- outputs -------------------------------------------------------------------------
     def best_elites(self, state: QDState, n: int) -> tuple[np.ndarray, np.ndarray]:
         """Up to ``n`` elites of the result archive (see :func:`select_elites`)."""
-        arr = archive_arrays(state.res_archive)
-        pick = select_elites(arr["objective"], n)
-        return arr["genotypes"][pick], pick
+        objective = np.asarray(state.res_archive.fitnesses)[:, 0]
+        pick = select_elites(objective, n)
+        return np.asarray(state.res_archive.genotypes)[pick], pick
 
     def write_outputs(self, state: QDState) -> None:
         """Archives as ``.npz`` and, unless disabled, every picture."""
-        save_npz(self.run_dir / "archive_result.npz", archive_arrays(state.res_archive))
-        save_npz(self.run_dir / "archive_opt.npz", archive_arrays(state.opt_archive))
+        spec = self.loop.spec
+        for which, archive in (("result", state.res_archive), ("opt", state.opt_archive)):
+            archive_io.save_archive(self.run_dir / f"archive_{which}.npz",
+                                    checkpoint.archive_elites(archive), spec.cells, spec.ranges)
         if self.cfg.output.pictures:
             self.write_pictures(state)
 
@@ -266,33 +301,39 @@ def load_run_config(run_dir: Path) -> DictConfig:
 
 
 def load_archive(run_dir: str | Path, which: str = "result") -> dict[str, Any]:
-    """A run's archive as numpy arrays (genotypes, objective, measures, centroids, ...).
+    """A run's archive as per-cell arrays (:func:`nca_qd.qd.archive_io.archive_view`:
+    ``objective``, ``measures``, ``thresholds``, ``centroids`` and ``genotypes`` indexed by cell).
 
     A finished run has ``archive_<which>.npz``; a run still in progress (or interrupted) has
     only its checkpoint, whose archive is read instead — so a long search can be evaluated,
     rendered or explored while it goes on, without stopping it."""
     path = Path(run_dir) / f"archive_{which}.npz"
     if path.is_file():
-        with np.load(path) as data:
-            return {k: data[k] for k in data.files}
+        return archive_io.read_archive(path)
     ckpt = Path(run_dir) / CHECKPOINT_FILE
-    if not ckpt.is_file():
+    legacy = Path(run_dir) / LEGACY_CHECKPOINT_FILE
+    if not ckpt.is_file() and not legacy.is_file():
         raise NcaQdError(f"{path} not found and no {CHECKPOINT_FILE} beside it "
                          "(has the run finished an iteration yet?)")
-    archive, iteration = archive_from_checkpoint(ckpt, which)
+    archive, iteration = archive_from_checkpoint(ckpt if ckpt.is_file() else legacy, which)
     log.info("%s: no %s yet; using the archive of its checkpoint (iteration %d)",
              run_dir, path.name, iteration)
     return archive
 
 
 def archive_from_checkpoint(path: str | Path, which: str = "result") -> tuple[dict[str, Any], int]:
-    """The ``which`` archive of a checkpoint as :func:`archive_arrays` gives it, and the
-    checkpoint's iteration. Read without a template (no emitter or loop is built): the
-    checkpoint is plain msgpack of the state's fields."""
+    """The ``which`` archive of a checkpoint as :func:`load_archive` gives it, and the
+    checkpoint's iteration. Read without a template (no emitter or loop is built)."""
+    path = Path(path)
+    if path.suffix == ".npz":
+        arrays, meta = checkpoint.read_checkpoint(path)
+        grid = arrays["grid_cells"].tolist(), arrays["grid_ranges"].tolist()
+        return (archive_io.archive_view(checkpoint.archive_from_arrays(arrays, which), *grid),
+                int(meta["iteration"]))
     from flax import serialization
 
-    try:
-        tree = serialization.msgpack_restore(Path(path).read_bytes())
+    try:  # a dense msgpack checkpoint of an earlier version
+        tree = serialization.msgpack_restore(path.read_bytes())
         state = tree["state"]
         arch = state[{"result": "res_archive", "opt": "opt_archive"}[which]]
         return archive_fields_to_arrays(arch), int(np.asarray(state["iteration"]))

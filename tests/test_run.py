@@ -17,7 +17,7 @@ from conftest import TINY_MAZE as TINY
 from nca_qd.experiment import Experiment
 
 REPO = Path(__file__).resolve().parents[1]
-OUTPUTS = ["config.yaml", "metrics.csv", "checkpoint.msgpack", "archive_result.npz",
+OUTPUTS = ["config.yaml", "metrics.csv", "checkpoint.npz", "archive_result.npz",
            "archive_opt.npz", "archive_result.png", "archive_opt.png", "curves.png",
            "best_train.png", "best_eval.png"]
 
@@ -41,19 +41,21 @@ def test_short_maze_run_writes_every_output(full_run):
     for col in ("qd_score", "coverage", "best_objective", "wall_seconds"):
         assert col in rows[-1]
     archive = np.load(run_dir / "archive_result.npz")
-    assert archive["genotypes"].shape == (256 * 162, 1730)
     occupied = np.isfinite(archive["objective"])
-    assert 0 < occupied.sum() <= 40
-    assert float(rows[-1]["coverage"]) == pytest.approx(occupied.mean())
+    assert occupied.all() and 0 < occupied.size <= 40  # elites only, not the 41,472-cell grid
+    assert archive["genotypes"].shape == (occupied.size, 1730)
+    assert archive["cells"].shape == (occupied.size,) and archive["grid_cells"].tolist() == [256, 162]
+    assert float(rows[-1]["coverage"]) == pytest.approx(occupied.size / (256 * 162))
 
 
-def test_resume_continues_and_ends_where_an_uninterrupted_run_ends(full_run, tmp_path):
+def test_exact_resume_continues_and_ends_where_an_uninterrupted_run_ends(full_run, tmp_path):
+    """checkpoint.exact=true: the resumed run replays the uninterrupted one bit for bit."""
     run_dir, _, reference = full_run
     # first leg: stop after 24 evaluations (3 iterations), then resume to 40
     part = tmp_path / "resumed"
-    Experiment(_cfg("qd.n_evals=24", "output.pictures=false"), part).run()
+    Experiment(_cfg("qd.n_evals=24", "output.pictures=false", "checkpoint.exact=true"), part).run()
     assert [int(r["iteration"]) for r in _metrics(part)] == [1, 2, 3]
-    exp = Experiment(_cfg("qd.n_evals=40", "output.pictures=false"), part)
+    exp = Experiment(_cfg("qd.n_evals=40", "output.pictures=false", "checkpoint.exact=true"), part)
     state = exp.run(resume=True)
     assert [int(r["iteration"]) for r in _metrics(part)] == [1, 2, 3, 4, 5]
     np.testing.assert_array_equal(np.asarray(state.res_archive.fitnesses),
@@ -73,18 +75,28 @@ def test_a_run_in_progress_is_read_from_its_checkpoint(full_run, tmp_path):
     run_dir, _, _ = full_run
     live = tmp_path / "live"
     live.mkdir()
-    for name in ("config.yaml", "checkpoint.msgpack"):
+    for name in ("config.yaml", "checkpoint.npz"):
         shutil.copy(run_dir / name, live / name)
     for which in ("result", "opt"):
         got, want = load_archive(live, which), load_archive(run_dir, which)
         assert sorted(got) == sorted(want)
-        for k in want:
+        occupied = np.isfinite(want["objective"])
+        for k in ("objective", "measures", "centroids", "cells"):
             np.testing.assert_array_equal(got[k], want[k], err_msg=f"{which}/{k}")
-    (live / "checkpoint.msgpack").write_bytes(b"not msgpack")
+        cells = np.flatnonzero(occupied)
+        # Result elites are exact; optimisation elites that are only restart points are stored
+        # at int8 per row in the checkpoint (error <= 1/510 of the row's range).
+        a, b = got["genotypes"][cells], want["genotypes"][cells]
+        if which == "result":
+            np.testing.assert_array_equal(a, b)
+        else:
+            span = b.max(axis=1) - b.min(axis=1)
+            assert np.all(np.abs(a - b).max(axis=1) <= span / 510 * 1.001 + 1e-6)
+    (live / "checkpoint.npz").write_bytes(b"not a checkpoint")
     with pytest.raises(NcaQdError, match="not a readable checkpoint"):
         load_archive(live)
-    (live / "checkpoint.msgpack").unlink()
-    with pytest.raises(NcaQdError, match="no checkpoint.msgpack"):
+    (live / "checkpoint.npz").unlink()
+    with pytest.raises(NcaQdError, match="no checkpoint.npz"):
         load_archive(live)
 
 
@@ -123,9 +135,9 @@ def test_ctrl_c_leaves_a_resumable_checkpoint(tmp_path):
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env={**os.environ, "JAX_PLATFORMS": "cpu"})
     deadline = time.time() + 240
-    while time.time() < deadline and not (run_dir / "checkpoint.msgpack").exists():
+    while time.time() < deadline and not (run_dir / "checkpoint.npz").exists():
         time.sleep(0.5)
-    assert (run_dir / "checkpoint.msgpack").exists(), "no checkpoint appeared"
+    assert (run_dir / "checkpoint.npz").exists(), "no checkpoint appeared"
     time.sleep(1.0)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=120)

@@ -404,7 +404,9 @@ def _run(args, timeout=600):
 
 
 def test_tiny_warehouse_run_writes_outputs_and_resumes_identically(tmp_path):
-    common = TINY_WAREHOUSE + ["eval.workers=0", "output.n_best=2"]
+    # checkpoint.exact: the resumed leg replays the uninterrupted run bit for bit (the default
+    # compact checkpoint resumes it statistically: tests/test_checkpoint.py).
+    common = TINY_WAREHOUSE + ["eval.workers=0", "output.n_best=2", "checkpoint.exact=true"]
     full = _run(common + ["qd.n_evals=18", f"run_dir={tmp_path / 'full'}"])
     assert full.returncode == 0, full.stderr[-2000:]
     part = _run(common + ["qd.n_evals=12", "output.pictures=false", f"run_dir={tmp_path / 'part'}"])

@@ -172,6 +172,99 @@ class ESEmitters:
         return state.replace(es=es, restarts=state.restarts + restarted.astype(jnp.int32))
 
 
+    # --- checkpoints (nca_qd.qd.checkpoint) -------------------------------------------------
+    def compact_state(self, state: ESEmitterState, rank: int, tolerance: float
+                      ) -> tuple[dict[str, np.ndarray], dict]:
+        """The emitters' state without its ``d x d`` arrays where that loses (almost) nothing.
+
+        Every vector and counter is stored exactly. A covariance is stored as its diagonal plus
+        the ``rank`` leading eigenpairs of its off-diagonal part (:func:`lowrank_offdiagonal`)
+        when what that leaves out, ``||C - approximation||_F / mean(diag C)``, is at most
+        ``tolerance`` -- at d ~ 2,000 CMA-ES moves ``C`` so slowly that it is -- and in full
+        otherwise (small d, or long adaptation). The cached eigenbasis is dropped and
+        recomputed on restore. Returns the arrays and, per emitter, what was left out."""
+        es = state.es
+        out = {k: np.asarray(v) for k, v in
+               {".restarts": state.restarts, ".es.mean": es.mean, ".es.std": es.std,
+                ".es.p_std": es.p_std, ".es.p_c": es.p_c,
+                ".es.generation_counter": es.generation_counter,
+                ".es.best_solution": es.best_solution, ".es.best_fitness": es.best_fitness}.items()}
+        C = np.asarray(es.C)
+        parts = [lowrank_offdiagonal(np.asarray(c, np.float64), rank) for c in C]
+        full = np.array([p[3] > tolerance for p in parts], bool)
+        out[".es.C_diag"] = np.stack([p[0] for p in parts]).astype(np.float32)
+        out[".es.C_vectors"] = np.stack([p[1] for p in parts]).astype(np.float32)
+        out[".es.C_values"] = np.stack([p[2] for p in parts]).astype(np.float32)
+        out[".es.C_full_index"] = np.flatnonzero(full).astype(np.int32)
+        out[".es.C_full"] = C[full]
+        left = [0.0 if f else float(p[3]) for p, f in zip(parts, full)]
+        return out, {"covariance_left_out": left, "covariance_full": full.tolist()}
+
+    def expand_state(self, arrays: dict[str, np.ndarray], template: ESEmitterState) -> ESEmitterState:
+        """Inverse of :meth:`compact_state`; the eigenbasis is recomputed from the covariance."""
+        from nca_qd.errors import NcaQdError
+
+        n, d = self.n_emitters, self.dim
+        try:
+            diag, vec, val = arrays[".es.C_diag"], arrays[".es.C_vectors"], arrays[".es.C_values"]
+            full_index, full = arrays[".es.C_full_index"], arrays[".es.C_full"]
+        except KeyError as exc:
+            raise NcaQdError(f"emitter state lacks {exc} (written by another algorithm)") from None
+        if diag.shape != (n, d) or vec.shape[:2] != (n, d):
+            raise NcaQdError(f"emitter state holds {diag.shape[0]} emitters of dimension "
+                             f"{diag.shape[-1]}; this configuration has {n} of {d}")
+        C = np.einsum("edk,ek,efk->edf", vec.astype(np.float64), val.astype(np.float64),
+                      vec.astype(np.float64))
+        C[:, np.arange(d), np.arange(d)] = diag
+        C = C.astype(np.float32)
+        C[full_index] = full
+        B, D = [], []
+        for c in C:
+            sym = (c + c.T) / 2
+            d_sq, b = _host_eigh(sym + 1e-8 * np.eye(d, dtype=np.float32))
+            B.append(b)
+            D.append(np.sqrt(np.maximum(d_sq, 1e-8)))
+        es = template.es
+        fields = {"mean": ".es.mean", "std": ".es.std", "p_std": ".es.p_std", "p_c": ".es.p_c",
+                  "generation_counter": ".es.generation_counter",
+                  "best_solution": ".es.best_solution", "best_fitness": ".es.best_fitness"}
+        values = {}
+        for field, name in fields.items():
+            ref = getattr(es, field)
+            if name not in arrays or arrays[name].shape != ref.shape:
+                raise NcaQdError(f"emitter state's {field} does not match this configuration")
+            values[field] = jnp.asarray(arrays[name], dtype=ref.dtype)
+        es = es.replace(**values, C=jnp.asarray(C), B=jnp.asarray(np.stack(B)),
+                        D=jnp.asarray(np.stack(D)))
+        restarts = jnp.asarray(arrays[".restarts"], dtype=template.restarts.dtype)
+        return template.replace(es=es, restarts=restarts)
+
+
+def lowrank_offdiagonal(C: np.ndarray, rank: int, seed: int = 0
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """``C`` (symmetric) as ``diag(C) + V diag(w) V^T`` with the ``rank`` eigenpairs of the
+    off-diagonal part largest in magnitude (randomised subspace iteration: O(d^2 rank), no full
+    ``eigh``). Returns (diagonal, V [d, rank], w [rank], left out) where "left out" is
+    ``||C - approximation||_F / mean(diag C)``: for a covariance near ``s I`` the KL divergence
+    between the two Gaussians is about a quarter of its square."""
+    d = C.shape[0]
+    diag = np.diag(C).copy()
+    off = C - np.diag(diag)
+    scale = max(float(np.mean(diag)), 1e-300)
+    k = min(rank, d)
+    if k == 0 or not off.any():
+        return diag, np.zeros((d, k)), np.zeros(k), float(np.linalg.norm(off)) / scale
+    rng = np.random.default_rng(seed)
+    Q, _ = np.linalg.qr(rng.standard_normal((d, min(d, k + 8))))
+    for _ in range(4):
+        Q, _ = np.linalg.qr(off @ Q)
+    w, V = np.linalg.eigh(Q.T @ off @ Q)
+    top = np.argsort(-np.abs(w))[:k]
+    w, V = w[top], Q @ V[:, top]
+    left = float(np.linalg.norm(off - (V * w) @ V.T))
+    return diag, V, w, left / scale
+
+
 class IsoLineState(flax.struct.PyTreeNode):
     asked: jax.Array  # solutions emitted so far
 

@@ -23,7 +23,6 @@ import flax.struct
 import jax
 import jax.numpy as jnp
 import numpy as np
-from qdax.core.containers.mapelites_repertoire import MapElitesRepertoire
 
 from nca_qd.domains.base import EvalBatch
 from nca_qd.qd.archive import ThresholdRepertoire, archive_stats, grid_cell_indices
@@ -165,18 +164,9 @@ def archive_spec(algo_name: str, domain_cfg: Any, qd_cfg: Any) -> ArchiveSpec:
     )
 
 
-def archive_arrays(archive: MapElitesRepertoire) -> dict[str, np.ndarray]:
-    """Plain numpy arrays of an archive (for ``.npz`` files and notebooks)."""
-    fields = {"genotypes": archive.genotypes, "fitnesses": archive.fitnesses,
-              "descriptors": archive.descriptors, "centroids": archive.centroids}
-    if isinstance(archive, ThresholdRepertoire):
-        fields["thresholds"] = archive.thresholds
-    return archive_fields_to_arrays(fields)
-
-
 def archive_fields_to_arrays(fields: Mapping[str, Any]) -> dict[str, np.ndarray]:
-    """:func:`archive_arrays` from a repertoire's fields by name (e.g. a checkpoint read as
-    plain msgpack): genotypes, objective, measures, centroids and, if present, thresholds."""
+    """Dense numpy arrays of a repertoire's fields by name (a dense msgpack checkpoint of an
+    earlier version): genotypes, objective, measures, centroids and, if present, thresholds."""
     out = {
         "genotypes": np.asarray(fields["genotypes"]),
         "objective": np.asarray(fields["fitnesses"])[:, 0],

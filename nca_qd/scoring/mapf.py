@@ -144,6 +144,8 @@ class MapfScorer:
         self.failed_objective = float(dcfg.get("failed_repair_objective", 0.0))
         self.repair_opts = repair_options(dcfg, "train")
         self.backend = make_backend(run_cfg.get("eval"))
+        # The simulator a checkpoint's archive was scored with (a resume under another is refused).
+        self.simulator_version = f"rhcr {RHCR_VERSION}"
         # What remembered results depend on: a memo made under other settings is not used.
         self.fingerprint = json.dumps({"domain": domain.name, "n_agents": self.n_agents, "T": self.T,
                                        "n_runs": self.n_runs, "repair": self.repair_opts,
