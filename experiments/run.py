@@ -51,7 +51,7 @@ def main(argv: list[str]) -> int:
         cfg = compose_config("run", overrides)
         stamp = datetime.datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
         run_path = Path(run_dir or cfg.run_dir or f"runs/{cfg.domain.name}/{stamp}")
-        if any((run_path / f).exists() for f in ("checkpoint.npz", "checkpoint.msgpack")):
+        if any((run_path / f).exists() for f in ("checkpoint.npz", "checkpoint.msgpack", "snapshot.npz")):
             raise NcaQdError(f"{run_path} already holds a run; continue it with resume={run_path}")
     cfg.run_dir = str(run_path)
     exp = Experiment(cfg, run_path)

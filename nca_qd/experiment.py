@@ -10,6 +10,9 @@ A run directory holds
   ``qd.checkpoint_every`` iterations, at the end and on Ctrl-C (``checkpoint.exact`` chooses
   a bit-exact or a compact emitter state); a ``checkpoint.msgpack`` of earlier versions
   (dense) still resumes, and is replaced by the first new checkpoint;
+* ``snapshot.npz`` (with ``snapshot.enabled=true``): a portable copy of each checkpoint, small
+  enough to commit (only the best ``snapshot.exact_elites`` result elites keep float32
+  parameters); a run whose ``checkpoint.npz`` is missing (a fresh clone) resumes from it;
 * ``eval_memo.npz`` (warehouse, manufacturing): the repairs and exact runs already made,
   written just before each checkpoint (:mod:`nca_qd.scoring.memo`);
 * ``archive_result.npz`` / ``archive_opt.npz``: both archives as their elites
@@ -54,6 +57,7 @@ METRIC_COLUMNS = [
 ]
 CONFIG_FILE, METRICS_FILE, CHECKPOINT_FILE = "config.yaml", "metrics.csv", "checkpoint.npz"
 LEGACY_CHECKPOINT_FILE = "checkpoint.msgpack"  # dense msgpack of earlier versions
+SNAPSHOT_FILE = "snapshot.npz"  # portable: the state a fresh clone resumes from
 
 
 def validate_config(cfg: DictConfig) -> None:
@@ -102,6 +106,16 @@ class Experiment:
         self.n_iterations = math.ceil(cfg.qd.n_evals / self.loop.batch_size)
         self.checkpoint_policy = checkpoint.CheckpointPolicy.from_config(
             OmegaConf.to_container(cfg.checkpoint) if cfg.get("checkpoint") is not None else None)
+        snap = cfg.get("snapshot") or {}
+        if not isinstance(snap.get("enabled", False), bool):
+            raise NcaQdError(f"snapshot.enabled must be true or false, got {snap.get('enabled')!r}")
+        self.snapshot_policy = None
+        if snap.get("enabled", False):
+            base = self.checkpoint_policy
+            self.snapshot_policy = checkpoint.CheckpointPolicy(
+                exact=False, restart_dtype="int8", covariance_rank=base.covariance_rank,
+                covariance_tolerance=base.covariance_tolerance,
+                exact_elites=snap.get("exact_elites", 64))
         # What the checkpoint's results depend on beyond the config (the exact simulator).
         self.simulator = getattr(self.objective.evaluator, "simulator_version", None)
 
@@ -119,6 +133,9 @@ class Experiment:
                 "simulator": self.simulator}
         checkpoint.save_checkpoint(self.run_dir / CHECKPOINT_FILE, state, self.loop.emitter,
                                    self.checkpoint_policy, meta)
+        if self.snapshot_policy is not None:
+            checkpoint.save_checkpoint(self.run_dir / SNAPSHOT_FILE, state, self.loop.emitter,
+                                       self.snapshot_policy, {**meta, "snapshot": True})
         legacy = self.run_dir / LEGACY_CHECKPOINT_FILE
         if legacy.exists():  # superseded by the sparse checkpoint just written
             legacy.unlink()
@@ -128,6 +145,9 @@ class Experiment:
     def load_checkpoint(self) -> tuple[QDState, float]:
         path = self.run_dir / CHECKPOINT_FILE
         legacy = self.run_dir / LEGACY_CHECKPOINT_FILE
+        if not path.is_file() and (self.run_dir / SNAPSHOT_FILE).is_file():
+            path = self.run_dir / SNAPSHOT_FILE
+            log.info("no %s: resuming from the portable %s", CHECKPOINT_FILE, SNAPSHOT_FILE)
         if path.is_file():
             state, meta = checkpoint.load_checkpoint(path, self.initial_state(), self.loop.emitter)
             saved = meta.get("simulator")
@@ -311,6 +331,8 @@ def load_archive(run_dir: str | Path, which: str = "result") -> dict[str, Any]:
     if path.is_file():
         return archive_io.read_archive(path)
     ckpt = Path(run_dir) / CHECKPOINT_FILE
+    if not ckpt.is_file() and (Path(run_dir) / SNAPSHOT_FILE).is_file():
+        ckpt = Path(run_dir) / SNAPSHOT_FILE
     legacy = Path(run_dir) / LEGACY_CHECKPOINT_FILE
     if not ckpt.is_file() and not legacy.is_file():
         raise NcaQdError(f"{path} not found and no {CHECKPOINT_FILE} beside it "

@@ -210,3 +210,20 @@ def test_resume_under_another_exact_simulator_is_refused(full_run, tmp_path):
     exp.simulator = "rhcr 2"
     with pytest.raises(NcaQdError, match="scored with exact simulator rhcr 1"):
         exp.run(resume=True)
+
+
+def test_a_snapshot_keeps_the_best_result_elites_exact_and_the_rest_close(cma_mae_sphere, tmp_path):
+    loop, state = cma_mae_sphere
+    policy = ck.CheckpointPolicy(exact_elites=3)
+    ck.save_checkpoint(tmp_path / "s.npz", state, loop.emitter, policy)
+    back, _ = ck.load_checkpoint(tmp_path / "s.npz", loop.init(jax.random.PRNGKey(0)), loop.emitter)
+    f = np.asarray(state.res_archive.fitnesses)[:, 0]
+    occ = np.flatnonzero(np.isfinite(f))
+    best = occ[np.argsort(-f[occ], kind="stable")[:3]]
+    g, h = np.asarray(state.res_archive.genotypes), np.asarray(back.res_archive.genotypes)
+    np.testing.assert_array_equal(h[best], g[best])
+    np.testing.assert_array_equal(np.asarray(back.res_archive.fitnesses), np.asarray(state.res_archive.fitnesses))
+    rest = np.setdiff1d(occ, best)
+    assert rest.size and not np.array_equal(h[rest], g[rest])
+    span = g[rest].max(axis=1) - g[rest].min(axis=1)
+    assert np.all(np.abs(h[rest] - g[rest]).max(axis=1) <= span / 510 * 1.001 + 1e-6)

@@ -428,6 +428,35 @@ def test_tiny_warehouse_run_writes_outputs_and_resumes_identically(tmp_path):
     assert (tmp_path / "part" / "eval_memo.npz").is_file()  # the resumed leg kept its memo
 
 
+def test_a_tiny_warehouse_run_resumes_from_its_portable_snapshot_on_a_fresh_clone(tmp_path):
+    """Only what results/<run>/ commits (config, metrics, memo, snapshot) reaches the new
+    machine; the run continues from the snapshot to its end."""
+    import shutil
+
+    common = TINY_WAREHOUSE + ["eval.workers=0", "output.pictures=false", "snapshot.enabled=true",
+                               "snapshot.exact_elites=1"]
+    first = _run(common + ["qd.n_evals=12", f"run_dir={tmp_path / 'leg1'}"])
+    assert first.returncode == 0, first.stderr[-2000:]
+    leg1 = tmp_path / "leg1"
+    snap, full = leg1 / "snapshot.npz", leg1 / "checkpoint.npz"
+    assert snap.is_file() and snap.stat().st_size < full.stat().st_size
+    from nca_qd.qd.checkpoint import read_checkpoint
+
+    arrays, meta = read_checkpoint(snap)
+    assert meta["snapshot"] and arrays["res_exact"].sum() == 1  # the best elite stays float32
+    assert arrays["res_restart_genotypes"].dtype == np.int8
+    clone = tmp_path / "clone"
+    clone.mkdir()
+    for name in ("config.yaml", "metrics.csv", "eval_memo.npz", "snapshot.npz"):
+        shutil.copy(leg1 / name, clone / name)
+    more = _run([f"resume={clone}", "qd.n_evals=18"])
+    assert more.returncode == 0, more.stderr[-2000:]
+    with open(clone / "metrics.csv") as fh:
+        assert [int(r["iteration"]) for r in csv.DictReader(fh)] == [1, 2, 3]
+    a = np.load(clone / "archive_result.npz")
+    assert np.isfinite(a["objective"]).all() and a["genotypes"].shape[0] == a["objective"].size
+
+
 @pytest.mark.parametrize("args, message", [
     (["eval.exact=sometimes"], "eval.exact must be one of selective, all"),
     (["eval.scheduler=tcp://127.0.0.1:9", "eval.connect_timeout_s=1"],
