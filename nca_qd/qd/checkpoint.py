@@ -23,7 +23,10 @@ A dense QD state is mostly empty space: both archives hold ``cells x d`` paramet
   distributions), in full otherwise. At d ~ 2,000 CMA-ES's covariance learning rates are ~1e-6
   per generation, so ``C`` stays that close to diagonal for hundreds of generations; at
   d = 100 it does not, and is stored in full (``benchmarks/bench_checkpoint.py`` measures
-  both). The cached eigenbasis is recomputed from the restored covariance.
+  both). The cached eigenbasis ``B, D`` is not stored but recomputed from the matrix it
+  factors, ``B D^2 B^T`` (stored the same compact way): CMA-ES refreshes it lazily (every ~230
+  generations at d ~ 2,000), and recomputing it from the current ``C`` instead would make a
+  resumed search sample from another distribution than the uninterrupted one.
 
 ``exact=True`` stores everything bit for bit (full covariance and eigenbasis, float32
 parameters): a resumed run then replays the uninterrupted one exactly. The default policy

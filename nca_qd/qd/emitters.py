@@ -177,12 +177,13 @@ class ESEmitters:
                       ) -> tuple[dict[str, np.ndarray], dict]:
         """The emitters' state without its ``d x d`` arrays where that loses (almost) nothing.
 
-        Every vector and counter is stored exactly. A covariance is stored as its diagonal plus
-        the ``rank`` leading eigenpairs of its off-diagonal part (:func:`lowrank_offdiagonal`)
-        when what that leaves out, ``||C - approximation||_F / mean(diag C)``, is at most
-        ``tolerance`` -- at d ~ 2,000 CMA-ES moves ``C`` so slowly that it is -- and in full
-        otherwise (small d, or long adaptation). The cached eigenbasis is dropped and
-        recomputed on restore. Returns the arrays and, per emitter, what was left out."""
+        Every vector and counter is stored exactly. Two matrices per emitter are stored
+        compactly (:func:`compact_matrices`): the covariance ``C`` and the one CMA-ES samples
+        with, ``B D^2 B^T`` -- the covariance at the last (lazy) eigendecomposition, which at
+        d ~ 2,000 is refreshed only every ~230 generations, so between refreshes the search
+        samples from an older, rounder distribution than ``C``. Restoring ``B`` and ``D`` from
+        that matrix rather than from ``C`` keeps the resumed search sampling as the
+        uninterrupted one would. Returns the arrays and, per emitter, what was left out."""
         es = state.es
         out = {k: np.asarray(v) for k, v in
                {".restarts": state.restarts, ".es.mean": es.mean, ".es.std": es.std,
@@ -190,38 +191,32 @@ class ESEmitters:
                 ".es.generation_counter": es.generation_counter,
                 ".es.best_solution": es.best_solution, ".es.best_fitness": es.best_fitness}.items()}
         C = np.asarray(es.C)
-        parts = [lowrank_offdiagonal(np.asarray(c, np.float64), rank) for c in C]
-        full = np.array([p[3] > tolerance for p in parts], bool)
-        out[".es.C_diag"] = np.stack([p[0] for p in parts]).astype(np.float32)
-        out[".es.C_vectors"] = np.stack([p[1] for p in parts]).astype(np.float32)
-        out[".es.C_values"] = np.stack([p[2] for p in parts]).astype(np.float32)
-        out[".es.C_full_index"] = np.flatnonzero(full).astype(np.int32)
-        out[".es.C_full"] = C[full]
-        left = [0.0 if f else float(p[3]) for p, f in zip(parts, full)]
-        return out, {"covariance_left_out": left, "covariance_full": full.tolist()}
+        arrays, left, full = compact_matrices(C, rank, tolerance)
+        out.update({".es.C" + k: v for k, v in arrays.items()})
+        B, D = np.asarray(es.B, np.float32), np.asarray(es.D, np.float32)
+        scalar = np.ptp(D, axis=1) <= 1e-7 * np.abs(D).mean(axis=1)
+        sampling = np.stack([np.diag(np.full(self.dim, d_[0] ** 2)) if sc else (b * d_ ** 2) @ b.T
+                             for b, d_, sc in zip(B, D, scalar)]).astype(np.float32)
+        arrays, s_left, s_full = compact_matrices(sampling, rank, tolerance)
+        out.update({".es.S" + k: v for k, v in arrays.items()})
+        return out, {"covariance_left_out": left, "covariance_full": full,
+                     "sampling_left_out": s_left, "sampling_full": s_full}
 
     def expand_state(self, arrays: dict[str, np.ndarray], template: ESEmitterState) -> ESEmitterState:
-        """Inverse of :meth:`compact_state`; the eigenbasis is recomputed from the covariance."""
+        """Inverse of :meth:`compact_state`; ``B`` and ``D`` come from the sampling matrix."""
         from nca_qd.errors import NcaQdError
 
         n, d = self.n_emitters, self.dim
-        try:
-            diag, vec, val = arrays[".es.C_diag"], arrays[".es.C_vectors"], arrays[".es.C_values"]
-            full_index, full = arrays[".es.C_full_index"], arrays[".es.C_full"]
-        except KeyError as exc:
-            raise NcaQdError(f"emitter state lacks {exc} (written by another algorithm)") from None
-        if diag.shape != (n, d) or vec.shape[:2] != (n, d):
-            raise NcaQdError(f"emitter state holds {diag.shape[0]} emitters of dimension "
-                             f"{diag.shape[-1]}; this configuration has {n} of {d}")
-        C = np.einsum("edk,ek,efk->edf", vec.astype(np.float64), val.astype(np.float64),
-                      vec.astype(np.float64))
-        C[:, np.arange(d), np.arange(d)] = diag
-        C = C.astype(np.float32)
-        C[full_index] = full
+        C = expand_matrices({k[len(".es.C"):]: v for k, v in arrays.items() if k.startswith(".es.C")}, n, d)
+        S = expand_matrices({k[len(".es.S"):]: v for k, v in arrays.items() if k.startswith(".es.S")}, n, d)
         B, D = [], []
-        for c in C:
-            sym = (c + c.T) / 2
-            d_sq, b = _host_eigh(sym + 1e-8 * np.eye(d, dtype=np.float32))
+        for s_ in S:
+            if not (s_ - np.diag(np.diag(s_))).any() and np.ptp(np.diag(s_)) == 0:
+                # A multiple of I (the basis of a fresh start): eigh would return I as well.
+                B.append(np.eye(d, dtype=np.float32))
+                D.append(np.full(d, np.sqrt(s_[0, 0]), np.float32))
+                continue
+            d_sq, b = _host_eigh((s_ + s_.T) / 2)
             B.append(b)
             D.append(np.sqrt(np.maximum(d_sq, 1e-8)))
         es = template.es
@@ -238,6 +233,41 @@ class ESEmitters:
                         D=jnp.asarray(np.stack(D)))
         restarts = jnp.asarray(arrays[".restarts"], dtype=template.restarts.dtype)
         return template.replace(es=es, restarts=restarts)
+
+
+def compact_matrices(M: np.ndarray, rank: int, tolerance: float
+                     ) -> tuple[dict[str, np.ndarray], list[float], list[bool]]:
+    """Symmetric matrices ``[n, d, d]`` as diagonal + ``rank`` eigenpairs of the off-diagonal
+    part (:func:`lowrank_offdiagonal`) where that leaves out at most ``tolerance``, in full
+    otherwise. Returns the arrays, what was left out per matrix and which were kept in full."""
+    parts = [lowrank_offdiagonal(np.asarray(m, np.float64), rank) for m in M]
+    full = np.array([p[3] > tolerance for p in parts], bool)
+    arrays = {"_diag": np.stack([p[0] for p in parts]).astype(np.float32),
+              "_vectors": np.stack([p[1] for p in parts]).astype(np.float32),
+              "_values": np.stack([p[2] for p in parts]).astype(np.float32),
+              "_full_index": np.flatnonzero(full).astype(np.int32),
+              "_full": np.asarray(M, np.float32)[full]}
+    return arrays, [0.0 if f else float(p[3]) for p, f in zip(parts, full)], full.tolist()
+
+
+def expand_matrices(arrays: dict[str, np.ndarray], n: int, d: int) -> np.ndarray:
+    """Inverse of :func:`compact_matrices` (float32 ``[n, d, d]``)."""
+    from nca_qd.errors import NcaQdError
+
+    try:
+        diag, vec, val = arrays["_diag"], arrays["_vectors"], arrays["_values"]
+        full_index, full = arrays["_full_index"], arrays["_full"]
+    except KeyError as exc:
+        raise NcaQdError(f"emitter state lacks {exc} (written by another algorithm)") from None
+    if diag.shape != (n, d) or vec.shape[:2] != (n, d):
+        raise NcaQdError(f"emitter state holds {diag.shape[0]} emitters of dimension "
+                         f"{diag.shape[-1]}; this configuration has {n} of {d}")
+    M = np.einsum("edk,ek,efk->edf", vec.astype(np.float64), val.astype(np.float64),
+                  vec.astype(np.float64))
+    M[:, np.arange(d), np.arange(d)] = diag
+    M = M.astype(np.float32)
+    M[full_index] = full
+    return M
 
 
 def lowrank_offdiagonal(C: np.ndarray, rank: int, seed: int = 0
