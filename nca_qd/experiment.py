@@ -109,13 +109,11 @@ class Experiment:
         snap = cfg.get("snapshot") or {}
         if not isinstance(snap.get("enabled", False), bool):
             raise NcaQdError(f"snapshot.enabled must be true or false, got {snap.get('enabled')!r}")
-        self.snapshot_policy = None
-        if snap.get("enabled", False):
-            base = self.checkpoint_policy
-            self.snapshot_policy = checkpoint.CheckpointPolicy(
-                exact=False, restart_dtype="int8", covariance_rank=base.covariance_rank,
-                covariance_tolerance=base.covariance_tolerance,
-                exact_elites=snap.get("exact_elites", 64))
+        base = self.checkpoint_policy
+        snapshot_policy = checkpoint.CheckpointPolicy(  # validated even while disabled
+            exact=False, restart_dtype="int8", covariance_rank=base.covariance_rank,
+            covariance_tolerance=base.covariance_tolerance, exact_elites=snap.get("exact_elites", 64))
+        self.snapshot_policy = snapshot_policy if snap.get("enabled", False) else None
         # What the checkpoint's results depend on beyond the config (the exact simulator).
         self.simulator = getattr(self.objective.evaluator, "simulator_version", None)
 

@@ -113,6 +113,9 @@ def _cli(*args, timeout=300):
     (["qd.n_evals=-5"], "qd.n_evals must be a positive integer"),
     (["domain.size.train=[0,16]"], "domain.size.train must be two integers"),
     (["resume=/nonexistent/run"], "does not exist"),
+    (["checkpoint.restart_dtype=int4"], "checkpoint restart_dtype must be int8, float16 or float32"),
+    (["checkpoint.exact=maybe"], "checkpoint exact must be true or false"),
+    (["snapshot.exact_elites=-1"], "checkpoint exact_elites must be a non-negative integer"),
 ])
 def test_bad_input_gets_one_line_and_exit_2(args, message):
     out = _cli(*args)
