@@ -188,26 +188,15 @@ def decode_archives(arrays: Mapping[str, np.ndarray], res_template: ThresholdRep
     if tuple(arrays["grid_cells"].tolist()) != tuple(res_template.grid_cells):
         raise NcaQdError(f"checkpoint's archive grid is {tuple(arrays['grid_cells'].tolist())}, "
                          f"this configuration's {tuple(res_template.grid_cells)}")
-    r_cells = arrays["res_cells"]
-    keep = arrays["res_exact"].astype(bool)
-    r_g = np.zeros((r_cells.size, d), np.float32)
-    if arrays["res_genotypes"].shape[1:] != (d,) and arrays["res_genotypes"].size:
+    if arrays["res_genotypes"].shape[1:] != (d,):
         raise NcaQdError(f"checkpoint holds {arrays['res_genotypes'].shape[1]} parameters per "
                          f"elite; this configuration has {d}")
-    r_g[keep] = arrays["res_genotypes"]
-    r_g[~keep] = _load_params(arrays, "res_restart_genotypes")
-    res = _restore_archive(res_template, r_cells, arrays["res_objective"], arrays["res_measures"],
-                           arrays["res_thresholds"], r_g)
-    o_cells = arrays["opt_cells"]
-    shared = arrays["opt_shared"].astype(bool)
-    row_of = np.full(res_template.genotypes.shape[0], -1, np.int64)
-    row_of[r_cells] = np.arange(r_cells.size)
-    o_g = np.zeros((o_cells.size, d), np.float32)
-    o_g[shared] = r_g[row_of[o_cells[shared]]]
-    o_g[~shared] = _load_params(arrays, "opt_genotypes")
-    opt = _restore_archive(opt_template, o_cells, arrays["opt_objective"], arrays["opt_measures"],
-                           arrays["opt_thresholds"], o_g)
-    return res, opt
+    archives = []
+    for which, template in (("result", res_template), ("opt", opt_template)):
+        e = archive_from_arrays(arrays, which)
+        archives.append(_restore_archive(template, e["cells"], e["objective"], e["measures"],
+                                         e["thresholds"], e["genotypes"]))
+    return archives[0], archives[1]
 
 
 # --- emitters and other state --------------------------------------------------------------
