@@ -24,7 +24,18 @@ log = logging.getLogger("nca_qd.repair")
 
 # Repair options: the command line's value, else the domain config's repair block.
 OPTIONS = ("method", "time_limit_s", "improve_time_s", "improve_windows", "window", "window_time_s",
-           "max_window_cells", "max_violation_fraction", "threads", "seed")
+           "max_window_cells", "max_violation_fraction", "threads", "seed", "milp_time_s",
+           "milp_nodes")
+
+
+def domain_default(cfg, key: str, n_rows: int):
+    """The domain's repair setting; a per-size one (``{train: .., eval: ..}``) is taken for the
+    size whose row count the layout has (training size when neither matches)."""
+    value = cfg.domain.repair.get(key)
+    if hasattr(value, "keys"):
+        which = "eval" if n_rows == int(cfg.domain.size.eval[0]) else "train"
+        value = value.get(which)
+    return value
 
 
 def main(argv: list[str]) -> int:
@@ -34,12 +45,13 @@ def main(argv: list[str]) -> int:
         raise NcaQdError(f"domain {domain!r} has no repair (repairable: {', '.join(DOMAIN_NAMES)})")
     if not cfg.layout or not cfg.out:
         raise NcaQdError("give layout=<in.json> and out=<out.json>")
-    opts = {key: (cfg[key] if cfg[key] is not None else cfg.domain.repair.get(key))
-            for key in OPTIONS}
     tiles = tiles_of(domain)
     path = Path(cfg.layout)
     mapfile = load_map(path, tiles)
     layout = mapfile.to_array(tiles)
+    opts = {key: (cfg[key] if cfg[key] is not None else domain_default(cfg, key, layout.shape[0]))
+            for key in OPTIONS}
+    opts = {key: value for key, value in opts.items() if value is not None}
     try:
         if domain != "manufacturing":
             wh.check_frame(layout, str(path))

@@ -52,20 +52,9 @@ class RunSettings:
 def rhcr_options(cfg: DictConfig) -> dict:
     """The exact planner's knobs (``plan_time_limit_s``, ``pbs_max_nodes``, ``prioritize_start``),
     validated; keys missing from ``cfg`` keep the simulator's defaults (RHCR as the paper ran it)."""
-    out: dict = {}
-    if "plan_time_limit_s" in cfg:
-        out["plan_time_limit_s"] = None if cfg.plan_time_limit_s is None else _float(cfg, "plan_time_limit_s")
-    if "pbs_max_nodes" in cfg:
-        nodes = cfg.pbs_max_nodes
-        if not (nodes is None or nodes == "auto" or (isinstance(nodes, int) and not isinstance(nodes, bool)
-                                                      and nodes > 0)):
-            raise NcaQdError(f"pbs_max_nodes must be a positive integer, auto or null, got {nodes!r}")
-        out["pbs_max_nodes"] = nodes
-    if "prioritize_start" in cfg:
-        if not isinstance(cfg.prioritize_start, bool):
-            raise NcaQdError(f"prioritize_start must be true or false, got {cfg.prioritize_start!r}")
-        out["prioritize_start"] = cfg.prioritize_start
-    return out
+    from nca_qd.sim.rhcr import PLANNER_KEYS, planner_options
+
+    return planner_options({k: cfg[k] for k in PLANNER_KEYS if k in cfg})
 
 
 def _rhcr(scen: Scenario, s: RunSettings, seeds: list[int]) -> Iterator:

@@ -333,14 +333,15 @@ def check_agents(layouts: Mapping[str, EvalLayout], requests: Iterable[Request],
 # ------------------------------------------------------------------------------ simulation
 def exact_run(rows: list[str], scenario: str, n_agents: int, T: int, seed: int,
               time_limit_s: float | None, window: int, replan: int,
-              detail: bool) -> SimOutcome:
-    """One exact RHCR run as a backend job (errors of the layout come back in ``error``)."""
+              detail: bool, planner: Mapping[str, Any] | None = None) -> SimOutcome:
+    """One exact RHCR run as a backend job (errors of the layout come back in ``error``);
+    ``planner``: validated planner knobs (:func:`nca_qd.sim.rhcr.planner_options`)."""
     from nca_qd.sim.rhcr import simulate
 
     t0 = time.perf_counter()
     try:
         r = simulate(rows, scenario, n_agents, T, seed, window=window, replan=replan,
-                     time_limit_s=time_limit_s)
+                     time_limit_s=time_limit_s, **dict(planner or {}))
     except NcaQdError as exc:
         return SimOutcome("rhcr", seed, error=str(exc), seconds=time.perf_counter() - t0)
     return SimOutcome("rhcr", seed, float(r.throughput), bool(r.success), int(r.stop_time),
@@ -381,13 +382,16 @@ def simulate_cells(cells: Mapping[tuple[str, int], Request], layouts: Mapping[st
     from nca_qd.io import array_to_rows
     from nca_qd.scoring.backend import JobFailed, map_jobs
 
+    from nca_qd.sim.rhcr import planner_options
+
     rows = {k: array_to_rows(v.layout, tiles) for k, v in layouts.items() if v.layout is not None}
+    planner = planner_options(exact_cfg, "exact.")
     jobs, slots = [], []
     for (key, n), c in cells.items():
         for i in range(c.exact_runs):
             jobs.append((rows[key], scenario, n, T, seed0 + i, exact_cfg.get("time_limit_s"),
                          int(exact_cfg.get("window", 10)), int(exact_cfg.get("replan", 5)),
-                         c.detail))
+                         c.detail, planner))
             slots.append((key, n))
     results: Results = {}
     with ThreadPoolExecutor(max_workers=1) as pool:
@@ -842,6 +846,9 @@ def _validated(ecfg: Mapping[str, Any]) -> dict[str, Any]:
     tl = e["exact"].get("time_limit_s")
     if tl is not None and (isinstance(tl, bool) or not isinstance(tl, (int, float)) or tl <= 0):
         raise NcaQdError(f"exact.time_limit_s must be a positive number or null, got {tl!r}")
+    from nca_qd.sim.rhcr import planner_options
+
+    planner_options(e["exact"], "exact.")
     sel = e.setdefault("select", {"by": "s", "pool": 10, "runs": 2, "T": 1000})
     if sel.get("by") not in ("s", "s_eval"):
         raise NcaQdError(f"select.by must be s or s_eval, got {sel.get('by')!r}")

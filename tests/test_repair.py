@@ -78,6 +78,34 @@ def test_full_milp_is_optimal_and_no_worse_than_neighbourhood(seed):
     assert full.objective <= fast.objective
 
 
+@settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(st.lists(storage, min_size=6, max_size=6), min_size=7, max_size=7))
+def test_hybrid_is_valid_never_worse_than_its_start_and_optimal_with_time(cells):
+    """hybrid = the neighbourhood repair, then the full MILP warm-started from it: its layout is
+    valid (independent validator), no farther than the neighbourhood's, and — with time to
+    finish on a small map — as near as the proven optimum."""
+    lay = wh.assemble(np.array(cells, dtype=np.int32))
+    opts = dict(n_shelves=6, time_limit_s=60, improve_windows=1, seed=0)
+    nb = repair("warehouse_even", lay, method="neighbourhood", **opts)
+    hy = repair("warehouse_even", lay, method="hybrid", milp_time_s=30, **opts)
+    full = repair("warehouse_even", lay, method="full", n_shelves=6, time_limit_s=60)
+    assert_result_ok(hy, "warehouse_even", lay, n_shelves=6)
+    assert hy.objective <= nb.objective
+    assert full.status == "optimal" and hy.status == "optimal"
+    assert hy.objective == full.objective
+
+
+def test_hybrid_per_size_options_come_from_the_domain_config():
+    from nca_qd.scoring.tasks import repair_options
+
+    cfg = {"repair": {"method": {"train": "hybrid", "eval": "neighbourhood"}, "milp_time_s": 5,
+                      "n_shelves": {"train": 240, "eval": 2250}},
+           "n_agents": {"train": 200, "eval": 1400}}
+    train, evl = repair_options(cfg, "train"), repair_options(cfg, "eval")
+    assert (train["method"], train["milp_time_s"], train["n_shelves"]) == ("hybrid", 5, 240)
+    assert (evl["method"], evl["n_shelves"], evl["n_agents"]) == ("neighbourhood", 2250, 1400)
+
+
 def test_manufacturing_weights_and_similarity():
     # A lone station without endpoints: moving stations costs 5, adding endpoints 1.
     lay = np.zeros((6, 6), dtype=np.int32)

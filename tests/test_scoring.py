@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import os
+import time
 import subprocess
 import sys
 from pathlib import Path
@@ -75,6 +76,32 @@ def test_a_dead_worker_loses_no_returned_result_and_its_job_is_retried(tmp_path)
         be.close()
     assert out == [x + 100 for x in range(6)]
     assert (tmp_path / "died_3").exists()  # the worker did die
+
+
+def test_an_interrupt_stops_the_pool_without_waiting_for_running_jobs():
+    """SIGTERM / Ctrl-C during a batch of long jobs (minutes of RHCR): map raises at once and
+    the workers are gone, instead of close() waiting for the jobs to finish."""
+    import signal
+    import threading
+
+    from experiments.cli import _raise_interrupt
+
+    be = LocalBackend(2, retries=0)
+    be.map(_square, range(2))  # the workers are up
+    workers = list(be._pool._processes.values())
+    previous = signal.signal(signal.SIGTERM, _raise_interrupt)  # as the entry points do
+    timer = threading.Timer(1.0, os.kill, (os.getpid(), signal.SIGTERM))
+    timer.start()
+    t0 = time.perf_counter()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            be.map(time.sleep, [60.0] * 4)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+        timer.cancel()
+    be.close()
+    assert time.perf_counter() - t0 < 15
+    assert workers and not any(p.is_alive() for p in workers)
 
 
 def test_dask_backend_runs_jobs_on_a_cluster():

@@ -73,23 +73,27 @@ class LocalBackend:
             futures = {pool.submit(fn, *jobs[i]): i for i in todo}
             todo = []
             broken = False
-            for fut in as_completed(futures):
-                i = futures[fut]
-                try:
-                    results[i] = fut.result()
-                except BrokenProcessPool as exc:  # a worker died: this job is retried
-                    broken = True
-                    attempts[i] += 1
-                    if attempts[i] > self.retries:
-                        results[i] = JobFailed(f"worker died {attempts[i]} times: {exc}")
-                    else:
-                        todo.append(i)
-                except Exception as exc:  # noqa: BLE001 - a job's own error: retried, then kept
-                    attempts[i] += 1
-                    if attempts[i] > self.retries:
-                        results[i] = JobFailed(f"{type(exc).__name__}: {exc}")
-                    else:
-                        todo.append(i)
+            try:
+                for fut in as_completed(futures):
+                    i = futures[fut]
+                    try:
+                        results[i] = fut.result()
+                    except BrokenProcessPool as exc:  # a worker died: this job is retried
+                        broken = True
+                        attempts[i] += 1
+                        if attempts[i] > self.retries:
+                            results[i] = JobFailed(f"worker died {attempts[i]} times: {exc}")
+                        else:
+                            todo.append(i)
+                    except Exception as exc:  # noqa: BLE001 - a job's own error: retried, then kept
+                        attempts[i] += 1
+                        if attempts[i] > self.retries:
+                            results[i] = JobFailed(f"{type(exc).__name__}: {exc}")
+                        else:
+                            todo.append(i)
+            except KeyboardInterrupt:  # Ctrl-C or SIGTERM: stop now, not after the running jobs
+                self.abort()
+                raise
             if broken:
                 log.warning("a worker process died; %d job(s) resubmitted to a new pool", len(todo))
                 self._pool.shutdown(wait=False, cancel_futures=True)
@@ -109,6 +113,21 @@ class LocalBackend:
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
+
+    def abort(self) -> None:
+        """Drop the pool at once: queued jobs are cancelled and running workers terminated
+        (their jobs' results would be discarded anyway; an interrupted run resumes from its
+        checkpoint). Without this, SIGTERM would wait for minutes-long RHCR runs to finish."""
+        if self._pool is None:
+            return
+        pool, self._pool = self._pool, None
+        workers = list(getattr(pool, "_processes", {}).values())  # no public API before 3.14
+        pool.shutdown(wait=False, cancel_futures=True)
+        for proc in workers:
+            if proc.is_alive():
+                proc.terminate()
+        for proc in workers:
+            proc.join(timeout=5)
 
     def describe(self) -> str:
         return "inline" if self.workers == 0 else f"local process pool ({self.workers} workers)"

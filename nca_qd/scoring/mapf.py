@@ -35,7 +35,7 @@ from __future__ import annotations
 import json
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
@@ -48,6 +48,7 @@ from nca_qd.scoring.backend import JobFailed, make_backend, map_jobs
 from nca_qd.scoring.memo import MEMO_FILE, EvalMemo, first_of_each, layout_key
 from nca_qd.scoring.tasks import ExactOutcome, RepairOutcome, repair_options, repair_task, rhcr_task
 from nca_qd.sim.rhcr import VERSION as RHCR_VERSION
+from nca_qd.sim.rhcr import planner_options
 
 log = logging.getLogger(__name__)
 
@@ -79,6 +80,9 @@ class ScoringConfig:
     exact_time_limit_s: float | None = None
     screen_empty_cells: bool = False
     memo: bool = True
+    # exact planner knobs (plan_time_limit_s, pbs_max_nodes, prioritize_start) for the search's
+    # runs; missing keys keep RHCR's defaults as the paper ran it
+    planner: dict[str, Any] = field(default_factory=dict)
 
     @classmethod
     def from_cfg(cls, cfg: Mapping[str, Any] | None) -> "ScoringConfig":
@@ -97,7 +101,8 @@ class ScoringConfig:
                   exact_time_limit_s=(None if cfg.get("exact_time_limit_s") is None
                                       else float(cfg["exact_time_limit_s"])),
                   screen_empty_cells=bool(cfg.get("screen_empty_cells", False)),
-                  memo=bool(cfg.get("memo", True)))
+                  memo=bool(cfg.get("memo", True)),
+                  planner=planner_options(cfg, "eval."))
         if not 0.0 <= out.exact_random_share <= 1.0:
             raise NcaQdError(f"eval.exact_random_share must be in [0, 1], got {out.exact_random_share}")
         if out.screen_scale <= 0:
@@ -147,11 +152,12 @@ class MapfScorer:
         # The simulator a checkpoint's archive was scored with (a resume under another is refused).
         self.simulator_version = f"rhcr {RHCR_VERSION}"
         # What remembered results depend on: a memo made under other settings is not used.
-        self.fingerprint = json.dumps({"domain": domain.name, "n_agents": self.n_agents, "T": self.T,
-                                       "n_runs": self.n_runs, "repair": self.repair_opts,
-                                       "exact_time_limit_s": self.cfg.exact_time_limit_s,
-                                       "rhcr_version": RHCR_VERSION},
-                                      sort_keys=True, default=str)
+        settings = {"domain": domain.name, "n_agents": self.n_agents, "T": self.T,
+                    "n_runs": self.n_runs, "repair": self.repair_opts,
+                    "exact_time_limit_s": self.cfg.exact_time_limit_s, "rhcr_version": RHCR_VERSION}
+        if self.cfg.planner:  # (absent when unset: memos of runs with the defaults stay valid)
+            settings["planner"] = self.cfg.planner
+        self.fingerprint = json.dumps(settings, sort_keys=True, default=str)
         self.memo: EvalMemo | None = EvalMemo(self.fingerprint) if self.cfg.memo else None
         log.info("%s scoring: %s; screen %s, exact %s", domain.name, self.backend.describe(),
                  "on" if self.cfg.screen else "off", self.cfg.exact)
@@ -189,8 +195,8 @@ class MapfScorer:
 
     def exact(self, rows: list[list[str]], seeds: list[int]) -> np.ndarray:
         """Exact RHCR throughput per layout and seed ``[n, len(seeds)]`` (NaN where a run failed)."""
-        jobs = [(r, self.domain.name, self.n_agents, self.T, s, self.cfg.exact_time_limit_s)
-                for r in rows for s in seeds]
+        jobs = [(r, self.domain.name, self.n_agents, self.T, s, self.cfg.exact_time_limit_s,
+                 False, self.cfg.planner) for r in rows for s in seeds]
         out = map_jobs(self.backend, rhcr_task, jobs)
         tp = np.array([o.throughput if isinstance(o, ExactOutcome) and o.error is None else np.nan
                        for o in out]).reshape(len(rows), len(seeds))

@@ -16,15 +16,23 @@ import numpy as np
 
 # The domain config's repair keys that :func:`nca_qd.repair.repair` takes as options.
 REPAIR_OPTIONS = ("method", "time_limit_s", "improve_time_s", "improve_windows", "window",
-                  "window_time_s", "max_window_cells", "max_violation_fraction", "threads", "seed")
+                  "window_time_s", "max_window_cells", "max_violation_fraction", "threads", "seed",
+                  "milp_time_s", "milp_nodes")
 
 
 def repair_options(domain_cfg: Mapping[str, Any], which: str = "train") -> dict[str, Any]:
     """Keyword arguments of :func:`nca_qd.repair.repair` for the domain at size ``which``
     (``train`` or ``eval``): its repair block, N_s of that size (warehouse) and the agent
-    count of that size (manufacturing needs as many traversable tiles)."""
+    count of that size (manufacturing needs as many traversable tiles). An option may differ by
+    size: ``method: {train: hybrid, eval: neighbourhood}``."""
     rep = domain_cfg["repair"]
-    opts = {k: rep[k] for k in REPAIR_OPTIONS if k in rep and rep[k] is not None}
+    opts = {}
+    for k in REPAIR_OPTIONS:
+        value = rep.get(k)
+        if isinstance(value, Mapping):
+            value = value.get(which)
+        if value is not None:
+            opts[k] = value
     n_shelves = rep.get("n_shelves")
     if n_shelves is not None and n_shelves.get(which) is not None:
         opts["n_shelves"] = int(n_shelves[which])
@@ -72,13 +80,16 @@ class ExactOutcome:
 
 
 def rhcr_task(rows: list[str], scenario: str, n_agents: int, T: int, seed: int,
-              time_limit_s: float | None = None, detail: bool = False) -> ExactOutcome:
-    """One exact RHCR run; ``detail`` adds tasks per timestep and tile visits."""
+              time_limit_s: float | None = None, detail: bool = False,
+              planner: Mapping[str, Any] | None = None) -> ExactOutcome:
+    """One exact RHCR run; ``detail`` adds tasks per timestep and tile visits; ``planner``
+    holds validated planner knobs (:func:`nca_qd.sim.rhcr.planner_options`)."""
     from nca_qd.errors import NcaQdError
     from nca_qd.sim.rhcr import simulate
 
     try:
-        r = simulate(rows, scenario, n_agents, T, seed, time_limit_s=time_limit_s)
+        r = simulate(rows, scenario, n_agents, T, seed, time_limit_s=time_limit_s,
+                     **dict(planner or {}))
     except NcaQdError as exc:
         return ExactOutcome(seed, 0.0, False, 0, 0.0, error=str(exc))
     return ExactOutcome(seed, r.throughput, r.success, r.stop_time, r.cpu_seconds,

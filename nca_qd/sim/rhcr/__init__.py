@@ -18,7 +18,7 @@ from __future__ import annotations
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -32,7 +32,8 @@ except ImportError as exc:  # pragma: no cover - only when the package was not b
     raise ImportError("nca_qd.sim.rhcr._core is not built; run `make .venv/.installed` "
                       f"(pip install -e .) to compile it ({exc})") from exc
 
-__all__ = ["SimResult", "VERSION", "simulate", "simulate_many", "simulate_scenario"]
+__all__ = ["PLANNER_KEYS", "SimResult", "VERSION", "planner_options", "simulate", "simulate_many",
+           "simulate_scenario"]
 
 VERSION: int = int(_core.VERSION)
 
@@ -142,6 +143,38 @@ def simulate_many(rows: Sequence[str], scenario: str, n_agents: int, T: int,
         return [simulate_scenario(scen, n_agents, T, s, **kwargs) for s in seeds]
     with ThreadPoolExecutor(max_workers=threads) as pool:
         return list(pool.map(lambda s: simulate_scenario(scen, n_agents, T, s, **kwargs), seeds))
+
+
+# The planner's knobs a config may set (the rest of a run's settings are T, seeds, w, h).
+PLANNER_KEYS = ("plan_time_limit_s", "pbs_max_nodes", "prioritize_start")
+
+
+def planner_options(cfg: Mapping[str, Any] | None, where: str = "") -> dict[str, Any]:
+    """The planner knobs of ``cfg`` (:data:`PLANNER_KEYS`), validated, as keyword arguments of
+    :func:`simulate`; a key missing from ``cfg`` keeps the simulator's default (RHCR as the
+    paper ran it). ``where`` prefixes the key in error messages (e.g. ``eval.``)."""
+    cfg = cfg or {}
+    out: dict[str, Any] = {}
+    if "plan_time_limit_s" in cfg:
+        limit = cfg["plan_time_limit_s"]
+        if limit is not None and (isinstance(limit, bool) or not isinstance(limit, (int, float))
+                                  or not limit > 0):
+            raise NcaQdError(f"{where}plan_time_limit_s must be a positive number or null, "
+                             f"got {limit!r}")
+        out["plan_time_limit_s"] = None if limit is None else float(limit)
+    if "pbs_max_nodes" in cfg:
+        nodes = cfg["pbs_max_nodes"]
+        if not (nodes is None or nodes == "auto" or (isinstance(nodes, int)
+                                                      and not isinstance(nodes, bool) and nodes > 0)):
+            raise NcaQdError(f"{where}pbs_max_nodes must be a positive integer, auto or null, "
+                             f"got {nodes!r}")
+        out["pbs_max_nodes"] = nodes
+    if "prioritize_start" in cfg:
+        if not isinstance(cfg["prioritize_start"], bool):
+            raise NcaQdError(f"{where}prioritize_start must be true or false, "
+                             f"got {cfg['prioritize_start']!r}")
+        out["prioritize_start"] = cfg["prioritize_start"]
+    return out
 
 
 def _check_params(scen: Scenario, n_agents: int, T: int, window: int, replan: int,
