@@ -24,7 +24,6 @@ from nca_qd.errors import NcaQdError
 
 
 def main(argv: list[str]) -> int:
-    import nca_qd.agent  # noqa: F401  (registers the learned kind)
     from nca_qd.agent.transfer import run_transfer
     from nca_qd.io import atomic_write_text
 

@@ -13,7 +13,8 @@ import time
 import jax
 import numpy as np
 
-from nca_qd.domains.base import Domain, EvalBatch
+from nca_qd.domains.base import Domain
+from nca_qd.interfaces import EvalBatch, HostEvaluator
 from nca_qd.nca import NCAGenerator
 
 
@@ -57,16 +58,16 @@ class Objective:
 
     def save_state(self, run_dir) -> None:
         """Write what the scorer keeps between iterations (the MAPF scorer's memo), if any."""
-        if hasattr(self.evaluator, "save_state"):
+        if isinstance(self.evaluator, HostEvaluator):
             self.evaluator.save_state(run_dir)
 
     def restore_state(self, run_dir, iteration: int) -> None:
         """Resume the scorer's own state as it was after ``iteration``, if it has one."""
-        if hasattr(self.evaluator, "restore_state"):
+        if isinstance(self.evaluator, HostEvaluator):
             self.evaluator.restore_state(run_dir, iteration)
 
     def close(self) -> None:
-        if hasattr(self.evaluator, "close"):
+        if isinstance(self.evaluator, HostEvaluator):
             self.evaluator.close()
 
 

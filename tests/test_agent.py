@@ -17,7 +17,6 @@ from nca_qd.agent.ppo import Trainer
 from nca_qd.domains.maze import run_agent, solve_start_goal
 from nca_qd.sim import maze_agent as ma
 
-import nca_qd.agent  # noqa: F401  (registers "learned")
 
 
 def tiny_cfg(**over):

@@ -15,57 +15,13 @@ adds fixed-only tiles (the warehouse's workstation ``w``).
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping
 
-import jax
 import numpy as np
 
+from nca_qd.interfaces import EvalBatch, Evaluator
 
-@dataclass
-class EvalBatch:
-    """Scores of a batch of generated regions.
-
-    objective: ``[b]`` f_opt, what the optimisation archive ranks by.
-    measures: ``[b, m]`` measure values (the archive's axes).
-    result_objective: ``[b]`` f_res for the result archive (defaults to ``objective``).
-    valid: ``[b]`` bool, False where scoring failed (e.g. repair found nothing); such solutions
-        get the lowest objective and are not inserted in the archives.
-    result_valid: ``[b]`` bool, which solutions the result archive may take (defaults to
-        ``valid``; the multi-agent domains take only layouts with exact simulations).
-    extras: per-solution arrays or lists worth keeping (repaired layouts, timings, ...).
-    """
-
-    objective: Any
-    measures: Any
-    result_objective: Any = None
-    valid: Any = None
-    result_valid: Any = None
-    extras: dict[str, Any] = field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        if self.result_objective is None:
-            self.result_objective = self.objective
-        if self.valid is None:
-            self.valid = np.ones(np.shape(self.objective), dtype=bool)
-        if self.result_valid is None:
-            self.result_valid = self.valid
-
-
-# A pytree, so that jitted evaluators can return it.
-jax.tree_util.register_dataclass(
-    EvalBatch,
-    data_fields=["objective", "measures", "result_objective", "valid", "result_valid", "extras"],
-    meta_fields=[],
-)
-
-
-# A batched scorer: (regions [b, h, w] int, key, context) -> EvalBatch. ``context`` (a
-# :class:`nca_qd.scoring.mapf.ScoringContext` or None) tells what the search knows, e.g. the
-# result archive's elites; scorers that do not need it ignore it. A scorer may carry
-# ``metric_names`` (scalars it reports in ``extras["metrics"]`` for the metrics CSV) and
-# ``close()`` (release worker pools).
-Evaluator = Callable[..., EvalBatch]
+__all__ = ["Domain", "EvalBatch", "Evaluator"]
 
 
 class Domain(ABC):

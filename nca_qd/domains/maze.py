@@ -32,7 +32,6 @@ from nca_qd.domains.base import Domain, EvalBatch, Evaluator
 from nca_qd.errors import NcaQdError
 from nca_qd.measures import batch_entropy, tile_count
 from nca_qd.sim import maze_agent
-import nca_qd.agent  # noqa: F401,E402  (registers the "learned" policy kind)
 
 EMPTY, WALL = maze_agent.EMPTY, maze_agent.WALL
 MEASURES = ("n_walls", "entropy", "path_length")

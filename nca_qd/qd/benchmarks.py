@@ -12,7 +12,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from nca_qd.domains.base import EvalBatch
+from nca_qd.interfaces import EvalBatch
 from nca_qd.qd.loop import ArchiveSpec
 
 BOUND = 5.12

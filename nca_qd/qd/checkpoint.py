@@ -49,6 +49,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from nca_qd.interfaces import CompactEmitter
 from nca_qd.errors import NcaQdError
 from nca_qd.io import atomic_write_bytes
 from nca_qd.qd.archive import ThresholdRepertoire
@@ -231,9 +232,9 @@ def encode_state(state: Any, emitter: Any, policy: CheckpointPolicy) -> tuple[di
     (e.g. the covariance left out)."""
     arrays = encode_archives(state.res_archive, state.opt_archive, policy)
     info: dict[str, Any] = {}
-    compact = getattr(emitter, "compact_state", None)
-    if compact is not None and not policy.exact:
-        em, info = compact(state.emitter_state, policy.covariance_rank, policy.covariance_tolerance)
+    if isinstance(emitter, CompactEmitter) and not policy.exact:
+        em, info = emitter.compact_state(state.emitter_state, policy.covariance_rank,
+                                         policy.covariance_tolerance)
         arrays.update({"emitter" + k: v for k, v in em.items()})
     else:
         arrays.update(encode_tree("emitter", state.emitter_state))
@@ -248,10 +249,9 @@ def decode_state(arrays: Mapping[str, np.ndarray], template: Any, emitter: Any,
                  exact: bool) -> Any:
     """Inverse of :func:`encode_state` into the structure of ``template`` (an initial state)."""
     res, opt = decode_archives(arrays, template.res_archive, template.opt_archive)
-    expand = getattr(emitter, "expand_state", None)
-    if expand is not None and not exact:
+    if isinstance(emitter, CompactEmitter) and not exact:
         em = {k[len("emitter"):]: v for k, v in arrays.items() if k.startswith("emitter")}
-        emitter_state = expand(em, template.emitter_state)
+        emitter_state = emitter.expand_state(em, template.emitter_state)
     else:
         emitter_state = decode_tree("emitter", arrays, template.emitter_state)
     return template.replace(

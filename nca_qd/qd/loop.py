@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nca_qd.domains.base import EvalBatch
+from nca_qd.interfaces import Emitter, EvalBatch, ScoringContext
 from nca_qd.qd.archive import ThresholdRepertoire, archive_stats, grid_cell_indices
 
 Objective = Callable[..., EvalBatch]  # (solutions [b, d], key, context) -> EvalBatch
@@ -55,7 +55,7 @@ class ArchiveSpec:
 class QDLoop:
     """Runs one QD algorithm (an emitter, see :mod:`nca_qd.qd.emitters`) on an objective."""
 
-    def __init__(self, emitter: Any, objective: Objective, dim: int, spec: ArchiveSpec):
+    def __init__(self, emitter: Emitter, objective: Objective, dim: int, spec: ArchiveSpec):
         self.emitter, self.objective, self.dim, self.spec = emitter, objective, dim, spec
         self.batch_size = emitter.batch_size
         self._ask = jax.jit(self._ask_impl)
@@ -103,10 +103,8 @@ class QDLoop:
                    "batch_best": jnp.max(f_res), "batch_added": jnp.sum(info.status > 0)}
         return new, metrics
 
-    def context(self, state: QDState):
+    def context(self, state: QDState) -> ScoringContext:
         """What a scorer may ask of the search: the result archive's elite in a cell."""
-        from nca_qd.scoring.mapf import ScoringContext
-
         spec = self.spec
         fitness = state.res_archive.fitnesses[:, 0]
 

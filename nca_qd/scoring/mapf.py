@@ -41,8 +41,8 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from nca_qd.domains.base import EvalBatch
 from nca_qd.errors import NcaQdError
+from nca_qd.interfaces import EvalBatch, ScoringContext
 from nca_qd.io import array_to_rows
 from nca_qd.scoring.backend import JobFailed, make_backend, map_jobs
 from nca_qd.scoring.memo import MEMO_FILE, EvalMemo, first_of_each, layout_key
@@ -56,16 +56,6 @@ EXACT_POLICIES = ("selective", "all")
 METRIC_NAMES = ("n_valid", "n_exact", "exact_runs", "screen_bias", "screen_mae",
                 "repair_reused", "exact_reused",
                 "generate_seconds", "repair_seconds", "screen_seconds", "exact_seconds")
-
-
-@dataclass
-class ScoringContext:
-    """What a scorer may know of the search when it scores a batch."""
-
-    # measures [b, m] -> the result archive's elite objective in each one's cell (-inf: empty)
-    result_elite: Callable[[np.ndarray], np.ndarray]
-    # the iteration being scored (1 = the first): the memo's entries are stamped with it
-    iteration: int = 0
 
 
 @dataclass(frozen=True)

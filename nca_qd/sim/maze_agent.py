@@ -28,9 +28,11 @@ Policies are pluggable: a :class:`Policy` is three pure functions,
   partial view) and its memory, rule-based ones may read the layout directly. ``key`` is a fresh
   per-step key (unused keys cost nothing once jitted).
 
-Two rule-based policies are provided (:data:`POLICIES`; :func:`register_policy` adds more:
-:mod:`nca_qd.agent` registers the learned agent as ``learned``): ``shortest_path`` and ``wall_follower`` (documented at their
-constructors). :func:`rollout` runs ``E`` episodes of one maze (vmapped over episodes, one
+The registry :data:`POLICIES` names every kind a config may choose (``domain.agent.kind``):
+two rule-based policies, ``shortest_path`` and ``wall_follower`` (documented at their
+constructors), and ``learned``, the trained agent of :mod:`nca_qd.agent`, named by module path
+and imported only when chosen (so this module depends on no agent package; the agent package
+depends on this one). :func:`register_policy` adds more at run time. :func:`rollout` runs ``E`` episodes of one maze (vmapped over episodes, one
 ``lax.while_loop`` over time that stops when every episode is done); vmap it over mazes.
 """
 
@@ -266,21 +268,30 @@ def wall_follower_policy() -> Policy:
     return Policy(prepare, init, act, deterministic=True)
 
 
-POLICIES: dict[str, Callable[[], Policy]] = {
+# kind -> policy factory, or "module:function" of one, imported when the kind is first used
+POLICIES: dict[str, Callable[[], Policy] | str] = {
     "shortest_path": shortest_path_policy,
     "wall_follower": wall_follower_policy,
+    "learned": "nca_qd.agent.shipped:shipped_policy",
 }
 
 
-def register_policy(kind: str, factory: Callable[[], Policy]) -> None:
-    """Make ``factory()`` available as ``domain.agent.kind=<kind>``."""
+def register_policy(kind: str, factory: Callable[[], Policy] | str) -> None:
+    """Make ``factory()`` available as ``domain.agent.kind=<kind>`` (``factory`` may be a
+    ``"module:function"`` string, imported on first use)."""
     POLICIES[kind] = factory
 
 
 def get_policy(kind: str) -> Policy:
     if kind not in POLICIES:
         raise NcaQdError(f"unknown maze agent kind {kind!r} (known: {', '.join(sorted(POLICIES))})")
-    return POLICIES[kind]()
+    factory = POLICIES[kind]
+    if isinstance(factory, str):
+        import importlib
+
+        module, name = factory.split(":")
+        factory = getattr(importlib.import_module(module), name)
+    return factory()
 
 
 # --------------------------------------------------------------------------- rollouts

@@ -1,0 +1,96 @@
+"""Dependencies point one way: the pipeline's packages import each other without cycles, and the
+generic layers (the QD loop, the simulators, the repair) know nothing of the layers above them.
+
+Read from the source (every ``import`` statement, also those inside functions, which are
+dependencies too), so a new import that breaks the layering fails here with its file and line.
+"""
+
+from __future__ import annotations
+
+import ast
+from collections import defaultdict
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parents[1] / "nca_qd"
+
+# unit -> units it must never import (a unit is a top-level module or subpackage of nca_qd)
+FORBIDDEN = {
+    "interfaces": {"*"},
+    "errors": {"*"},
+    "qd": {"domains", "scoring", "sim", "repair", "agent", "pipeline", "experiment", "evaluation"},
+    "sim": {"domains", "scoring", "qd", "repair", "agent", "pipeline", "experiment", "evaluation"},
+    "repair": {"domains", "scoring", "qd", "sim", "agent", "pipeline", "experiment", "evaluation"},
+    "scoring": {"domains", "qd", "agent", "pipeline", "experiment", "evaluation"},
+    "domains": {"agent", "qd", "pipeline", "experiment", "evaluation"},
+    "nca": {"domains", "scoring", "qd", "sim", "repair", "agent"},
+    "measures": {"domains", "scoring", "qd", "sim", "repair", "agent"},
+}
+
+
+def _unit(module: str) -> str | None:
+    parts = module.split(".")
+    if parts[0] != "nca_qd" or len(parts) < 2:
+        return None
+    return parts[1]
+
+
+def import_graph() -> dict[str, dict[str, list[str]]]:
+    """unit -> imported unit -> ["file:line", ...] over every import in the package."""
+    graph: dict[str, dict[str, list[str]]] = defaultdict(lambda: defaultdict(list))
+    for path in sorted(PACKAGE.rglob("*.py")):
+        rel = path.relative_to(PACKAGE.parent)
+        here = _unit(".".join(rel.with_suffix("").parts))
+        for node in ast.walk(ast.parse(path.read_text(), str(rel))):
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                names = [node.module]
+            else:
+                continue
+            for name in names:
+                there = _unit(name)
+                if here and there and there != here:
+                    graph[here][there].append(f"{rel}:{node.lineno}")
+    return graph
+
+
+def test_the_package_graph_has_no_cycle():
+    graph = import_graph()
+    state: dict[str, int] = {}
+
+    def visit(unit: str, stack: list[str]) -> None:
+        state[unit] = 1
+        for nxt in graph.get(unit, {}):
+            if state.get(nxt) == 1:
+                cycle = stack[stack.index(nxt):] + [unit, nxt] if nxt in stack else [unit, nxt]
+                where = graph[unit][nxt][0]
+                pytest.fail(f"import cycle {' -> '.join(cycle)} (e.g. {where})")
+            if nxt not in state:
+                visit(nxt, stack + [unit])
+        state[unit] = 2
+
+    for unit in list(graph):
+        if unit not in state:
+            visit(unit, [])
+
+
+@pytest.mark.parametrize("unit", sorted(FORBIDDEN))
+def test_a_generic_layer_does_not_import_the_layers_above_it(unit):
+    graph = import_graph()
+    banned = FORBIDDEN[unit]
+    bad = {there: where for there, where in graph.get(unit, {}).items()
+           if there in banned or ("*" in banned and there != unit)}
+    assert not bad, f"nca_qd.{unit} imports " + "; ".join(
+        f"nca_qd.{t} ({', '.join(w[:3])})" for t, w in sorted(bad.items()))
+
+
+def test_the_checker_sees_an_import_it_must_refuse(tmp_path, monkeypatch):
+    """The graph is read from the source: a planted lazy import shows up with its line."""
+    pkg = tmp_path / "nca_qd"
+    (pkg / "qd").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "qd" / "__init__.py").write_text("def f():\n    from nca_qd.scoring import mapf\n")
+    monkeypatch.setattr(__import__(__name__), "PACKAGE", pkg)
+    assert import_graph()["qd"]["scoring"] == ["nca_qd/qd/__init__.py:2"]
