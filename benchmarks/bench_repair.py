@@ -23,7 +23,7 @@ import numpy as np
 from nca_qd.io import load_map
 from nca_qd.nca import NCAGenerator
 from nca_qd.repair import make_rules, repair
-from nca_qd.repair import warehouse as wh
+from nca_qd.layouts import warehouse as wh
 from nca_qd.repair.validator import check
 from nca_qd.io import reference_maps_dir
 

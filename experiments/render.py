@@ -20,14 +20,13 @@ from nca_qd.domains import domain_class
 
 
 def tiles_and_palette(domain: str | None, chars: set[str]) -> tuple[str, dict[str, str]]:
-    """Alphabet and palette of ``domain``, or guessed from the characters used."""
+    """Alphabet and palette of ``domain``, or of the first registered domain whose alphabet
+    holds most of the characters used (all of them, for a well-formed map; otherwise the map
+    reader then names the character that does not fit)."""
+    from nca_qd.domains import DOMAINS
+
     if domain is None:
-        if chars & set("X "):
-            domain = "maze"
-        elif chars & set("012"):
-            domain = "manufacturing"
-        else:
-            domain = "warehouse_even"
+        domain = max(DOMAINS, key=lambda name: len(chars & set(domain_class(name).layout_tiles)))
     cls = domain_class(domain)
     return cls.layout_tiles, dict(cls.palette)
 

@@ -16,16 +16,15 @@ from pathlib import Path
 from experiments.cli import compose_config, main_guard
 from nca_qd.errors import NcaQdError
 from nca_qd.io import MapFile, array_to_rows, load_map, save_map
-from nca_qd.repair import DOMAIN_NAMES, make_rules, repair, tiles_of
-from nca_qd.repair import warehouse as wh
+from nca_qd.repair import make_rules, repair, tiles_of
+from nca_qd.layouts import LAYOUTS, get_layout
 from nca_qd.repair.validator import check
 
 log = logging.getLogger("nca_qd.repair")
 
 # Repair options: the command line's value, else the domain config's repair block.
 OPTIONS = ("method", "time_limit_s", "improve_time_s", "improve_windows", "window", "window_time_s",
-           "max_window_cells", "max_violation_fraction", "threads", "seed", "milp_time_s",
-           "milp_nodes")
+           "max_window_cells", "max_violation_fraction", "threads", "seed", "milp_time_s")
 
 
 def domain_default(cfg, key: str, n_rows: int):
@@ -41,8 +40,8 @@ def domain_default(cfg, key: str, n_rows: int):
 def main(argv: list[str]) -> int:
     cfg = compose_config("repair", argv)
     domain = cfg.domain.name
-    if domain not in DOMAIN_NAMES:
-        raise NcaQdError(f"domain {domain!r} has no repair (repairable: {', '.join(DOMAIN_NAMES)})")
+    if domain not in LAYOUTS:
+        raise NcaQdError(f"domain {domain!r} has no repair (repairable: {', '.join(LAYOUTS)})")
     if not cfg.layout or not cfg.out:
         raise NcaQdError("give layout=<in.json> and out=<out.json>")
     tiles = tiles_of(domain)
@@ -53,8 +52,7 @@ def main(argv: list[str]) -> int:
             for key in OPTIONS}
     opts = {key: value for key, value in opts.items() if value is not None}
     try:
-        if domain != "manufacturing":
-            wh.check_frame(layout, str(path))
+        get_layout(domain).check_frame(layout, str(path))
         rules = make_rules(domain, layout.shape, n_shelves=cfg.n_shelves, n_agents=cfg.n_agents)
     except NcaQdError as exc:
         msg = str(exc)
@@ -72,16 +70,10 @@ def main(argv: list[str]) -> int:
         if cfg.render:
             from nca_qd.viz import render_layouts
 
-            render_layouts(cfg.render, [layout, res.layout], tiles, _palette(domain),
+            render_layouts(cfg.render, [layout, res.layout], tiles, dict(get_layout(domain).palette),
                            ["unrepaired", f"repaired (Hamming {res.hamming})"])
     print(json.dumps(line), flush=True)
     return 0 if res.layout is not None else 1
-
-
-def _palette(domain: str) -> dict[str, str]:
-    from nca_qd.repair import manufacturing as mf
-
-    return mf.PALETTE if domain == "manufacturing" else wh.PALETTE
 
 
 if __name__ == "__main__":

@@ -36,13 +36,12 @@ from typing import Any, Iterable, Mapping, Sequence
 import numpy as np
 
 from nca_qd.errors import NcaQdError
+from nca_qd.layouts import get_layout, layout_names
 
 log = logging.getLogger("nca_qd.evaluate")
 
-SUPPORTED = ("warehouse_even", "warehouse_uneven", "manufacturing")
+SUPPORTED = layout_names()  # the multi-agent domains (the maze has experiments.maze_transfer)
 SIMULATORS = ("rhcr", "screen")
-# Default agent-count steps of the S_eval sweep (the paper's): 25 warehouse, 50 manufacturing.
-EVAL_STEP = {"warehouse_even": 25, "warehouse_uneven": 25, "manufacturing": 50}
 
 
 # ------------------------------------------------------------------------------ records
@@ -133,8 +132,10 @@ def load_run(run_dir: str | Path, domain: str | None = None) -> tuple[Any, dict[
         raise NcaQdError(f"{path} is not a run directory ({CONFIG_FILE} missing)")
     cfg = load_run_config(path)
     name = OmegaConf.select(cfg, "domain.name")
-    if name == "maze" or (isinstance(name, str) and name.startswith("maze")):
-        raise NcaQdError(f"{path} is a maze run: experiments.evaluate supports only "
+    from nca_qd.domains import DOMAINS
+
+    if name in DOMAINS and name not in SUPPORTED:
+        raise NcaQdError(f"{path} is a {name} run: experiments.evaluate supports only "
                          f"{', '.join(SUPPORTED)}")
     if name not in SUPPORTED:
         raise NcaQdError(f"{path}: unknown domain {name!r} in {CONFIG_FILE} "
@@ -173,28 +174,14 @@ def pick_cells(objective: np.ndarray, elites: Any) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------ shapes
-def is_warehouse(domain_name: str) -> bool:
-    return domain_name.startswith("warehouse")
-
-
 def full_shape(domain_name: str, region: Sequence[int]) -> tuple[int, int]:
     """Full-map shape of a generated region (warehouse: plus the workstation columns)."""
-    from nca_qd.repair.warehouse import full_shape as wh_full
-
-    region = (int(region[0]), int(region[1]))
-    return wh_full(region) if is_warehouse(domain_name) else region
+    return get_layout(domain_name).full_shape((int(region[0]), int(region[1])))
 
 
 def region_shape(domain_name: str, full: Sequence[int]) -> tuple[int, int]:
     """The NCA's region of a full map of shape ``full``."""
-    from nca_qd.repair.warehouse import FRAME
-
-    h, w = int(full[0]), int(full[1])
-    if is_warehouse(domain_name):
-        if w <= 2 * FRAME:
-            raise NcaQdError(f"a {h}x{w} warehouse has no storage area")
-        return h, w - 2 * FRAME
-    return h, w
+    return get_layout(domain_name).region_shape((int(full[0]), int(full[1])))
 
 
 def interpolate_iters(full: Sequence[int], s_train: Sequence[int], s_eval: Sequence[int],
@@ -227,26 +214,24 @@ def generate_timed(domain, generator, genotypes: np.ndarray, full: Sequence[int]
 
 
 def tile_layout(domain_name: str, layout: np.ndarray, full: Sequence[int]) -> np.ndarray:
-    """The tiling baseline before repair: warehouse: the storage area tiled (and cropped) to
-    the storage area of ``full``, workstation columns added; manufacturing: the whole map."""
-    from nca_qd.repair import warehouse as wh
+    """The tiling baseline before repair: the generated region tiled (and cropped) to the
+    region of ``full``, the fixed frame added (warehouse: the storage area between the
+    workstation columns; manufacturing: the whole map)."""
+    kind = get_layout(domain_name)
 
     def tile(a: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
         reps = (-(-shape[0] // a.shape[0]), -(-shape[1] // a.shape[1]))
         return np.tile(a, reps)[: shape[0], : shape[1]]
 
-    layout = np.asarray(layout)
-    if is_warehouse(domain_name):
-        return wh.assemble(tile(wh.storage(layout), region_shape(domain_name, full)))
-    return tile(layout, (int(full[0]), int(full[1]))).astype(np.int32)
+    region = tile(kind.region(np.asarray(layout)), region_shape(domain_name, full))
+    return np.asarray(kind.assemble(region), dtype=np.int32)
 
 
 def human_layout(domain_name: str, full: Sequence[int], tiles: str) -> np.ndarray | None:
     """The human-designed layout of that size from the reference maps, None if there is none."""
     from nca_qd.io import load_map, reference_maps_dir
 
-    sub = "warehouse" if is_warehouse(domain_name) else "manufacturing"
-    path = reference_maps_dir() / sub / f"human_{size_str(full)}.json"
+    path = reference_maps_dir() / get_layout(domain_name).family / f"human_{size_str(full)}.json"
     if not path.is_file():
         return None
     return load_map(path, tiles).to_array(tiles)
@@ -878,7 +863,7 @@ class _Plan:
         self.n_train = int(e["agents"]["train"] or d["n_agents"]["train"])
         self.n_eval = int(e["agents"]["eval"] or d["n_agents"]["eval"])
         self.sweep_train = agent_range(e["sweep"]["train"], self.n_train, 10, "sweep.train")
-        self.sweep_eval = agent_range(e["sweep"]["eval"], self.n_eval, EVAL_STEP[name],
+        self.sweep_eval = agent_range(e["sweep"]["eval"], self.n_eval, get_layout(name).eval_agent_step,
                                       "sweep.eval")
         sz = e["sizes"]
         extra = [tuple(positive_ints(s, "sizes.shapes")) for s in sz["shapes"]]

@@ -24,6 +24,8 @@ FORBIDDEN = {
     "repair": {"domains", "scoring", "qd", "sim", "agent", "pipeline", "experiment", "evaluation"},
     "scoring": {"domains", "qd", "agent", "pipeline", "experiment", "evaluation"},
     "domains": {"agent", "qd", "pipeline", "experiment", "evaluation"},
+    "layouts": {"domains", "scoring", "qd", "sim", "repair", "agent", "pipeline", "experiment",
+                "evaluation"},
     "nca": {"domains", "scoring", "qd", "sim", "repair", "agent"},
     "measures": {"domains", "scoring", "qd", "sim", "repair", "agent"},
 }
@@ -84,6 +86,27 @@ def test_a_generic_layer_does_not_import_the_layers_above_it(unit):
            if there in banned or ("*" in banned and there != unit)}
     assert not bad, f"nca_qd.{unit} imports " + "; ".join(
         f"nca_qd.{t} ({', '.join(w[:3])})" for t, w in sorted(bad.items()))
+
+
+def test_no_module_outside_a_layout_family_branches_on_its_name():
+    """A layout family's facts live in its module under nca_qd/layouts/; elsewhere nothing
+    compares a domain name with a family's (``== "manufacturing"``, ``startswith("warehouse")``)."""
+    from nca_qd.layouts import LAYOUTS
+
+    families = {kind.family for kind in LAYOUTS.values()} | set(LAYOUTS)
+    found = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        if path.parent.name == "layouts":
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Compare) and any(
+                    isinstance(c, ast.Constant) and c.value in families for c in node.comparators):
+                found.append(f"{path.relative_to(PACKAGE.parent)}:{node.lineno}")
+            if (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
+                    and node.func.attr == "startswith" and node.args
+                    and isinstance(node.args[0], ast.Constant) and node.args[0].value in families):
+                found.append(f"{path.relative_to(PACKAGE.parent)}:{node.lineno}")
+    assert not found, "branches on a layout family's name: " + ", ".join(found)
 
 
 def test_the_checker_sees_an_import_it_must_refuse(tmp_path, monkeypatch):

@@ -6,7 +6,7 @@ import pytest
 
 from nca_qd.domains import make_domain
 from nca_qd.io import load_map
-from nca_qd.repair import warehouse as wh
+from nca_qd.layouts import warehouse as wh
 from nca_qd.io import reference_maps_dir
 from experiments.cli import compose_config
 

@@ -183,7 +183,7 @@ def test_curves_heatmaps_and_tasks(evaluated):
 
 def test_layouts_are_saved_and_tiling_is_repaired(evaluated):
     from nca_qd.repair import make_rules
-    from nca_qd.repair import warehouse as wh
+    from nca_qd.layouts import warehouse as wh
     from nca_qd.repair.validator import check
 
     out, _ = evaluated
@@ -197,7 +197,7 @@ def test_layouts_are_saved_and_tiling_is_repaired(evaluated):
 
 
 def test_tiling_keeps_the_frame_and_repeats_the_pattern():
-    from nca_qd.repair import warehouse as wh
+    from nca_qd.layouts import warehouse as wh
 
     rng = np.random.default_rng(1)
     small = wh.assemble(rng.integers(0, 3, (5, 4)))

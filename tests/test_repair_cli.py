@@ -11,7 +11,7 @@ from experiments import repair as repair_cli
 from experiments.cli import main_guard
 from nca_qd.io import load_map
 from nca_qd.repair import make_rules
-from nca_qd.repair import warehouse as wh
+from nca_qd.layouts import warehouse as wh
 from nca_qd.repair.validator import check
 
 GOOD = [

@@ -5,8 +5,8 @@ import pytest
 
 from nca_qd.io import load_map, rows_to_array
 from nca_qd.repair import make_rules
-from nca_qd.repair import manufacturing as mf
-from nca_qd.repair import warehouse as wh
+from nca_qd.layouts import manufacturing as mf
+from nca_qd.layouts import warehouse as wh
 from nca_qd.repair.validator import check, violation_mask, violations
 from nca_qd.io import reference_maps_dir
 

@@ -8,10 +8,13 @@
 - ``method="full"``: the paper's monolithic flow MILP over the whole map (:mod:`.milp`),
   warm-started with the greedy layout; exact, but minutes to hours beyond 33x36.
 - ``method="hybrid"``: the neighbourhood repair, then the monolithic MILP warm-started with its
-  result for at most ``milp_time_s`` seconds (or ``milp_nodes`` branch-and-bound nodes), keeping
+  result for at most ``milp_time_s`` seconds, keeping
   whichever is nearer. At size S this proves most near-valid layouts optimal in seconds (the
   paper's unrepaired layout: 147 tiles, where the neighbourhood stops at 175) and costs at most
   ``milp_time_s`` on the rest; the repair's distance drives alpha * Delta, so it matters there.
+  With ``improve_windows`` (work limits instead of time, so that the result does not depend on
+  the machine's load) hybrid is the neighbourhood repair alone: the MILP's time is not a work
+  limit.
 
 Statuses: ``optimal`` (proven), ``feasible`` (valid, optimality not proven: time limit or
 neighbourhood search), ``infeasible`` (proven that no valid layout exists), ``no_solution``
@@ -28,15 +31,13 @@ from typing import Any
 import numpy as np
 
 from nca_qd.errors import NcaQdError
-from nca_qd.repair import heuristic as _heuristic
-from nca_qd.repair import manufacturing as _manufacturing
-from nca_qd.repair import warehouse as _warehouse
+from nca_qd.layouts import get_layout
+from nca_qd.layouts.rules import Rules
+from nca_qd.repair.heuristic import greedy_layout
 from nca_qd.repair.milp import solve_window
 from nca_qd.repair.neighbourhood import lower_bound, repair_neighbourhood, weighted_distance
-from nca_qd.repair.rules import Rules
 from nca_qd.repair.validator import check, is_valid
 
-DOMAIN_NAMES = ("warehouse_even", "warehouse_uneven", "manufacturing")
 METHODS = ("neighbourhood", "full", "hybrid")
 
 
@@ -65,22 +66,14 @@ class RepairResult:
 
 def tiles_of(domain_name: str) -> str:
     """Layout alphabet of a repairable domain."""
-    _check_domain(domain_name)
-    return _manufacturing.TILES if domain_name == "manufacturing" else _warehouse.TILES
-
-
-def _check_domain(domain_name: str) -> None:
-    if domain_name not in DOMAIN_NAMES:
-        raise NcaQdError(f"unknown repair domain {domain_name!r} (known: {', '.join(DOMAIN_NAMES)})")
+    return get_layout(domain_name, "repair domain").tiles
 
 
 def make_rules(domain_name: str, shape: tuple[int, int], *, n_shelves: int | None = None,
                n_agents: int = 200) -> Rules:
     """Validity rules of ``domain_name`` for a full layout of ``shape``."""
-    _check_domain(domain_name)
-    if domain_name == "manufacturing":
-        return _manufacturing.rules(shape, n_agents=n_agents)
-    return _warehouse.rules(shape, n_shelves=n_shelves)
+    return get_layout(domain_name, "repair domain").rules(shape, n_shelves=n_shelves,
+                                                          n_agents=n_agents)
 
 
 def similarity(layout_in: np.ndarray, layout_out: np.ndarray, rules: Rules) -> float:
@@ -91,13 +84,8 @@ def similarity(layout_in: np.ndarray, layout_out: np.ndarray, rules: Rules) -> f
 
 
 def _greedy_for(domain_name: str, rules: Rules, n_agents: int):
-    if domain_name == "manufacturing":
-        m = _manufacturing
-        return lambda x: _heuristic.manufacturing_layout(x, rules, m.STATIONS, m.ENDPOINT, m.EMPTY,
-                                                         n_agents)
-    w = _warehouse
-    n_shelves = next(r.value for r in rules.counts if r.name == "shelves")
-    return lambda x: _heuristic.warehouse_layout(x, rules, w.SHELF, w.ENDPOINT, w.EMPTY, n_shelves)
+    construction = get_layout(domain_name).construction
+    return lambda x: greedy_layout(x, rules, construction, n_agents)
 
 
 def repair(
@@ -116,8 +104,7 @@ def repair(
     seed: int = 0,
     n_shelves: int | None = None,
     n_agents: int = 200,
-    milp_time_s: float = 10.0,
-    milp_nodes: int | None = None,
+    milp_time_s: float = 2.0,
 ) -> RepairResult:
     """Repair a full layout (indices into :func:`tiles_of`); see the module docstring."""
     t0 = time.perf_counter()
@@ -125,8 +112,7 @@ def repair(
         raise NcaQdError(f"unknown repair method {method!r} (known: {', '.join(METHODS)})")
     layout = np.asarray(layout, dtype=np.int32)
     rules = make_rules(domain_name, layout.shape, n_shelves=n_shelves, n_agents=n_agents)
-    if rules.fixed_layout is not None:
-        _warehouse.check_frame(layout, "layout")
+    get_layout(domain_name).check_frame(layout, "layout")
     greedy = _greedy_for(domain_name, rules, n_agents)
     improve_time_s = resolve_improve_time(improve_time_s, int((~rules.fixed).sum()))
     details: dict[str, Any] = {"lower_bound": lower_bound(layout, rules)}
@@ -140,11 +126,13 @@ def repair(
                                    max_violation_fraction=max_violation_fraction, threads=threads, seed=seed)
         status, best = out.status, out.layout
         details.update(out.stages)
-        if method == "hybrid" and status == "feasible":
+        # The MILP has no work limit that bounds its root (a far-from-valid 33x36 layout
+        # spends > 100 s there even with 10 nodes), so under work limits (improve_windows:
+        # the same answer whatever the load) hybrid stops after the neighbourhood.
+        if method == "hybrid" and status == "feasible" and improve_windows is None:
             budget = min(float(milp_time_s), time_limit_s - (time.perf_counter() - t0))
             if budget > 0:
-                status, best = _polish(layout, best, rules, budget, milp_nodes, threads, seed,
-                                       details)
+                status, best = _polish(layout, best, rules, budget, threads, seed, details)
     else:
         status, best = _full(layout, rules, greedy, time_limit_s, threads, seed, details)
     if best is not None:
@@ -191,13 +179,13 @@ def _count_impossible(rules: Rules) -> bool:
     return False
 
 
-def _polish(layout, start, rules, time_limit, max_nodes, threads, seed, details):
+def _polish(layout, start, rules, time_limit, threads, seed, details):
     """The whole-map MILP warm-started with the valid ``start``: a nearer layout if it finds one
     in its budget, ``optimal`` if it proves one; ``start`` (``feasible``) otherwise."""
     weights = rules.cell_weights(layout)
     before = weighted_distance(start, layout, weights)
     res = solve_window(start, layout, ~rules.fixed, rules, time_limit=time_limit,
-                       threads=threads, seed=seed, warm_start=True, max_nodes=max_nodes)
+                       threads=threads, seed=seed, warm_start=True)
     details["milp_s"] = res.seconds
     if res.layout is None or not is_valid(res.layout, rules):
         return "feasible", start

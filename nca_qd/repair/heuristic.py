@@ -14,8 +14,9 @@ first and the endpoints after it:
 2. Traversable cells next to an anchor keep an input endpoint, all others become empty; an anchor
    still without an endpoint gets one on a free neighbour (which the invariants guarantee).
 
-The warehouse adds exactly N_s shelves; manufacturing adds stations while that saves distance,
-then makes sure each kind occurs. The result is valid by construction (the validator checks it),
+A layout family's :class:`~nca_qd.layouts.base.Construction` says which anchors and which mode:
+an exact count (the warehouse's N_s shelves), or anchors added while that saves distance, then
+each kind made to occur (manufacturing's stations). The result is valid by construction (the validator checks it),
 not optimal: :mod:`nca_qd.repair.neighbourhood` improves it with exact window MILPs.
 """
 
@@ -25,7 +26,8 @@ import heapq
 
 import numpy as np
 
-from nca_qd.repair.rules import NEIGHBOURS, Rules
+from nca_qd.layouts.base import Construction
+from nca_qd.layouts.rules import NEIGHBOURS, Rules
 
 # The 8 cells around a cell in ring order; consecutive entries are 4-adjacent.
 _RING = ((-1, -1), (-1, 0), (-1, 1), (0, 1), (1, 1), (1, 0), (1, -1), (0, -1))
@@ -176,9 +178,10 @@ def _greedy(state: _State, kind_of, n_target: int | None, max_anchors: int) -> i
     return added
 
 
-def warehouse_layout(layout_in: np.ndarray, rules: Rules, shelf: int, endpoint: int, empty: int,
-                     n_shelves: int) -> np.ndarray | None:
-    """A valid warehouse layout near ``layout_in`` with ``n_shelves`` shelves (None if none found)."""
+def fixed_count_layout(layout_in: np.ndarray, rules: Rules, shelf: int, endpoint: int, empty: int,
+                       n_shelves: int) -> np.ndarray | None:
+    """A valid layout near ``layout_in`` with exactly ``n_shelves`` anchors of tile ``shelf``
+    (the warehouse's shelves; None if none found)."""
     state = _State(layout_in, rules, (shelf,), endpoint, empty)
     added = _greedy(state, lambda r, c: shelf, n_shelves, n_shelves)
     if added != n_shelves:
@@ -186,9 +189,10 @@ def warehouse_layout(layout_in: np.ndarray, rules: Rules, shelf: int, endpoint: 
     return state.finish()
 
 
-def manufacturing_layout(layout_in: np.ndarray, rules: Rules, stations: tuple[int, ...],
-                         endpoint: int, empty: int, n_agents: int) -> np.ndarray | None:
-    """A valid manufacturing layout near ``layout_in`` (None if none found)."""
+def balanced_kinds_layout(layout_in: np.ndarray, rules: Rules, stations: tuple[int, ...],
+                          endpoint: int, empty: int, n_agents: int) -> np.ndarray | None:
+    """A valid layout near ``layout_in`` with anchors of every kind in ``stations`` and at least
+    ``n_agents`` traversable tiles (manufacturing's stations; None if none found)."""
     state = _State(layout_in, rules, stations, endpoint, empty)
     counts = {s: 0 for s in stations}
 
@@ -234,3 +238,16 @@ def manufacturing_layout(layout_in: np.ndarray, rules: Rules, stations: tuple[in
         counts[donor] -= 1
         counts[kind] += 1
     return state.finish()
+
+
+def greedy_layout(layout_in: np.ndarray, rules: Rules, construction: Construction,
+                  n_agents: int) -> np.ndarray | None:
+    """The greedy construction a layout family's :class:`Construction` asks for: exactly the
+    count its rules fix for the anchors (warehouse shelves), or anchors while they save distance
+    with every kind present and ``n_agents`` traversable tiles left (manufacturing)."""
+    c = construction
+    if c.exact_count:
+        anchors = frozenset(c.anchors)
+        target = next(r.value for r in rules.counts if r.op == "==" and r.tiles == anchors)
+        return fixed_count_layout(layout_in, rules, c.anchors[0], c.endpoint, c.empty, target)
+    return balanced_kinds_layout(layout_in, rules, c.anchors, c.endpoint, c.empty, n_agents)

@@ -27,7 +27,7 @@ import highspy
 import numpy as np
 from scipy import ndimage
 
-from nca_qd.repair.rules import Rules, neighbours
+from nca_qd.layouts.rules import Rules, neighbours
 
 _FOUR = ndimage.generate_binary_structure(2, 1)
 

@@ -26,7 +26,7 @@ from typing import Callable
 import numpy as np
 
 from nca_qd.repair.milp import solve_window
-from nca_qd.repair.rules import Rules, dilate
+from nca_qd.layouts.rules import Rules, dilate
 from nca_qd.repair.validator import is_valid, violation_mask
 
 Heuristic = Callable[[np.ndarray], "np.ndarray | None"]

@@ -1,7 +1,7 @@
 """Independent validity check of a layout: graph search and counting, no MILP.
 
 The repair's output is trusted only after this check: it shares nothing with the MILP but the
-:class:`~nca_qd.repair.rules.Rules` data, and reports each violated constraint with a location
+:class:`~nca_qd.layouts.rules.Rules` data, and reports each violated constraint with a location
 (row, column) so that a failure says what is wrong and where.
 """
 
@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from nca_qd.repair.rules import Rules, has_neighbour_in
+from nca_qd.layouts.rules import Rules, has_neighbour_in
 
 _FOUR = ndimage.generate_binary_structure(2, 1)
 

@@ -17,7 +17,7 @@ import numpy as np
 # The domain config's repair keys that :func:`nca_qd.repair.repair` takes as options.
 REPAIR_OPTIONS = ("method", "time_limit_s", "improve_time_s", "improve_windows", "window",
                   "window_time_s", "max_window_cells", "max_violation_fraction", "threads", "seed",
-                  "milp_time_s", "milp_nodes")
+                  "milp_time_s")
 
 
 def repair_options(domain_cfg: Mapping[str, Any], which: str = "train") -> dict[str, Any]:

@@ -1,19 +1,21 @@
 """Independent checker for executed lifelong-MAPF paths.
 
 Replays a simulation's executed paths and asserts the rules of the model, sharing no code
-with the simulators (not even the scenario module): its own tile rules, its own goal rules,
-its own task counting. Used on every simulation in the tests.
+with the simulators (not even the scenario module): it reads only the layout family's declared
+facts (:mod:`nca_qd.layouts`: blocked tiles, goal kinds, dwell times, their cycle) and applies
+them with its own tile rules, its own goal rules, its own task counting. Used on every
+simulation in the tests.
 
 Rules checked:
 
 * every position is on the map and on a traversable tile (warehouse: not ``@``;
-  manufacturing: ``.`` or ``e``);
+  manufacturing: not a station);
 * every step is a wait or a move to a 4-neighbour;
 * no two agents on one tile at the same time (vertex conflict), no two agents swapping
   tiles along an edge in one step (swap conflict);
-* each agent's goals follow the scenario: warehouse goals alternate endpoint / workstation;
-  manufacturing goals cycle through station kinds 0, 1, 2 (any start), each an endpoint
-  4-adjacent to a station of that kind with dwell 2, 5, 10;
+* each agent's goals follow the scenario's cycle of goal kinds (any start): warehouse goals
+  alternate endpoint / workstation; manufacturing goals cycle through station kinds 0, 1, 2,
+  each an endpoint 4-adjacent to a station of that kind with dwell 2, 5, 10;
 * finished tasks recounted from the paths equal the simulator's ``tasks_per_step``. An
   agent works on its goals in order; a goal with dwell d is done at the timestep where the
   agent has stood on its cell for the arrival step plus d further consecutive timesteps.
@@ -25,6 +27,8 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
+
+from nca_qd.layouts import get_layout
 
 
 class CheckError(AssertionError):
@@ -39,9 +43,6 @@ class CheckReport:
     tasks_per_step: np.ndarray
 
 
-_DWELL = {"0": 2, "1": 5, "2": 10}
-
-
 def _rc(pos) -> tuple[int, int]:
     return int(pos[0]), int(pos[1])
 
@@ -49,11 +50,14 @@ def _rc(pos) -> tuple[int, int]:
 def traversable_mask(rows: Sequence[str], scenario: str) -> np.ndarray:
     """Tiles agents may stand on, by the checker's own rules."""
     grid = np.array([list(r) for r in rows])
-    if scenario.startswith("warehouse"):
-        return grid != "@"
-    if scenario == "manufacturing":
-        return (grid == ".") | (grid == "e")
-    raise CheckError(f"checker does not know scenario {scenario!r}")
+    return ~np.isin(grid, list(_task(scenario).blocked))
+
+
+def _task(scenario: str):
+    try:
+        return get_layout(scenario, "scenario").task
+    except Exception as exc:  # noqa: BLE001 - the checker reports, it does not raise user errors
+        raise CheckError(f"checker does not know scenario {scenario!r}") from exc
 
 
 def check_moves(paths: np.ndarray, traversable: np.ndarray) -> None:
@@ -108,31 +112,33 @@ def check_goals(goals: Sequence[np.ndarray], rows: Sequence[str], scenario: str)
     """Assert each agent's goal sequence follows the scenario's task rules."""
     grid = np.array([list(r) for r in rows])
     h, w = grid.shape
+    goal_kinds = _task(scenario).goals
+    n_kinds = len(goal_kinds)
     for a, seq in enumerate(goals):
         seq = np.asarray(seq)
-        kinds = []
+        options = []  # per goal: the kinds it can be
         for r, c, dwell in seq.tolist():
             if not (0 <= r < h and 0 <= c < w):
                 raise CheckError(f"agent {a}: goal {(r, c)} off the map")
             tile = grid[r, c]
-            if scenario.startswith("warehouse"):
-                if tile not in "ew" or dwell != 0:
-                    raise CheckError(f"agent {a}: goal {(r, c)} is {tile!r} with dwell {dwell}")
-                kinds.append(tile)
-            else:
-                if tile != "e":
-                    raise CheckError(f"agent {a}: goal {(r, c)} is {tile!r}, not an endpoint")
-                near = {grid[rr, cc] for rr, cc in ((r - 1, c), (r + 1, c), (r, c - 1), (r, c + 1))
-                        if 0 <= rr < h and 0 <= cc < w}
-                kind = next((k for k, d in _DWELL.items() if d == dwell), None)
-                if kind is None or kind not in near:
-                    raise CheckError(f"agent {a}: goal {(r, c)} with dwell {dwell} is not next to "
-                                     "a station of the matching kind")
-                kinds.append(kind)
-        for prev, nxt in zip(kinds, kinds[1:]):
-            ok = (prev != nxt) if scenario.startswith("warehouse") else int(nxt) == (int(prev) + 1) % 3
-            if not ok:
-                raise CheckError(f"agent {a}: goal kind {nxt!r} may not follow {prev!r}")
+            near = {grid[rr, cc] for rr, cc in ((r - 1, c), (r + 1, c), (r, c - 1), (r, c + 1))
+                    if 0 <= rr < h and 0 <= cc < w}
+            fits = {k for k, g in enumerate(goal_kinds)
+                    if g.tile == tile and g.dwell == dwell and (g.next_to is None or g.next_to in near)}
+            if not fits:
+                raise CheckError(f"agent {a}: goal {(r, c)} is {tile!r} with dwell {dwell}: no "
+                                 f"matching kind of goal in {scenario} "
+                                 f"({', '.join(g.name for g in goal_kinds)})")
+            options.append(fits)
+        # The kinds must follow the cycle: some start kind explains the whole sequence.
+        possible = set(options[0]) if options else set()
+        for i, fits in enumerate(options[1:], start=1):
+            possible = {(k + 1) % n_kinds for k in possible} & fits
+            if not possible:
+                prev = " or ".join(goal_kinds[k].name for k in sorted(options[i - 1]))
+                nxt = " or ".join(goal_kinds[k].name for k in sorted(fits))
+                raise CheckError(f"agent {a}: goal kind {nxt} may not follow {prev} "
+                                 f"(goal {i} of its sequence)")
 
 
 def recount_tasks(paths: np.ndarray, goals: Sequence[np.ndarray]) -> np.ndarray:

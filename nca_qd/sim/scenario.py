@@ -9,17 +9,11 @@ simulator):
   (timesteps an agent stays on the cell after arriving before the goal counts as done);
 * ``cycle`` -- the order in which an agent's goals cycle through the classes.
 
-Scenarios (Zhang et al., NeurIPS 2023, appendix A):
-
-``warehouse_even`` / ``warehouse_uneven``
-    Tiles ``.`` empty, ``@`` shelf, ``e`` endpoint, ``w`` workstation; everything but shelves
-    is traversable. Goals alternate endpoint (uniform) and workstation. Workstation weights are
-    all 1 (even), or 5 for workstations in the left half of the map and 1 elsewhere (uneven:
-    the paper's "left border workstations are 5 times more likely").
-``manufacturing``
-    Tiles ``.`` empty, ``e`` endpoint, ``0`` ``1`` ``2`` stations; only ``.`` and ``e`` are
-    traversable. Goals cycle through station kinds 0 -> 1 -> 2; a kind-k goal is an endpoint
-    4-adjacent to a kind-k station (uniform), where the agent stays 2, 5 or 10 timesteps.
+The task models (blocked tiles, goal kinds, dwell times, cycle) are facts of each layout
+family, read from :mod:`nca_qd.layouts` (``warehouse_even``, ``warehouse_uneven``,
+``manufacturing``; Zhang et al., NeurIPS 2023, appendix A): a goal of a kind is a cell holding
+its tile (and, where it says so, next to a given tile), drawn with weight ``left_weight`` in the
+left half of the map and 1 elsewhere.
 
 Validation raises :class:`~nca_qd.errors.NcaQdError` with one-line messages: unknown scenario,
 unknown tiles, an empty goal class, traversable tiles that are not all connected (some goal
@@ -35,12 +29,9 @@ import numpy as np
 
 from nca_qd.errors import NcaQdError
 from nca_qd.io import rows_to_array
+from nca_qd.layouts import get_layout, layout_names
 
-WAREHOUSE_TILES = ".@ew"
-MANUFACTURING_TILES = ".e012"
-MANUFACTURING_DWELL = (2, 5, 10)
-UNEVEN_LEFT_WEIGHT = 5.0
-SCENARIOS = ("warehouse_even", "warehouse_uneven", "manufacturing")
+SCENARIOS = layout_names()
 
 
 @dataclass(frozen=True)
@@ -74,13 +65,11 @@ class Scenario:
 
 def tiles_for(scenario: str) -> str:
     """The tile alphabet of a scenario's layouts."""
-    check_name(scenario)
-    return MANUFACTURING_TILES if scenario == "manufacturing" else WAREHOUSE_TILES
+    return get_layout(scenario, "scenario").tiles
 
 
 def check_name(scenario: str) -> None:
-    if scenario not in SCENARIOS:
-        raise NcaQdError(f"unknown scenario {scenario!r} (expected one of {', '.join(SCENARIOS)})")
+    get_layout(scenario, "scenario")
 
 
 def build_scenario(rows: list[str] | tuple[str, ...], scenario: str, n_agents: int | None = None,
@@ -97,32 +86,23 @@ def build_scenario(rows: list[str] | tuple[str, ...], scenario: str, n_agents: i
     rows_to_array(list(rows), tiles, source=source)  # unknown characters -> MapFormatError
     width = grid.shape[1]
 
-    if scenario == "manufacturing":
-        traversable = np.isin(grid, ["." , "e"])
-        endpoints = grid == "e"
-        classes = []
-        for kind, dwell in enumerate(MANUFACTURING_DWELL):
-            near = endpoints & _adjacent_to(grid == str(kind))
-            cells = np.flatnonzero(near).astype(np.int32)
-            if cells.size == 0:
-                raise NcaQdError(f"{source}: no endpoint next to a kind-{kind} station "
-                                 "(manufacturing needs one for each of 0, 1, 2)")
-            classes.append(GoalClass(f"station{kind}", cells, np.ones(cells.size), dwell))
-        cycle = (0, 1, 2)
-    else:
-        traversable = grid != "@"
-        ends = np.flatnonzero(grid == "e").astype(np.int32)
-        stations = np.flatnonzero(grid == "w").astype(np.int32)
-        if ends.size == 0:
-            raise NcaQdError(f"{source}: the warehouse has no endpoint ('e')")
-        if stations.size == 0:
-            raise NcaQdError(f"{source}: the warehouse has no workstation ('w')")
-        weights = np.ones(stations.size)
-        if scenario == "warehouse_uneven":
-            weights[(stations % width) < width / 2] = UNEVEN_LEFT_WEIGHT
-        classes = [GoalClass("endpoint", ends, np.ones(ends.size), 0),
-                   GoalClass("workstation", stations, weights, 0)]
-        cycle = (0, 1)
+    task = get_layout(scenario).task
+    traversable = ~np.isin(grid, list(task.blocked))
+    left = (np.arange(grid.size) % width) < width / 2
+    classes = []
+    for kind in task.goals:
+        where = grid == kind.tile
+        if kind.next_to is not None:
+            where &= _adjacent_to(grid == kind.next_to)
+        cells = np.flatnonzero(where).astype(np.int32)
+        if cells.size == 0:
+            near = f" next to a {kind.next_to!r} tile" if kind.next_to is not None else ""
+            raise NcaQdError(f"{source}: no {kind.name} goal: no {kind.tile!r} tile{near} "
+                             f"({scenario} needs one for each of "
+                             f"{', '.join(g.name for g in task.goals)})")
+        weights = np.where(left[cells], kind.left_weight, 1.0)
+        classes.append(GoalClass(kind.name, cells, weights, kind.dwell))
+    cycle = tuple(range(len(task.goals)))
 
     _check_connected(traversable, source)
     n_free = int(traversable.sum())

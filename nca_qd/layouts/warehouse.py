@@ -1,9 +1,14 @@
-"""Warehouse layouts: the fixed workstation frame and the repair rules.
+"""Warehouse layouts (paper §4 and appendix B.1): every fact of the family in one place.
 
 The full warehouse map is the NCA's storage area (tiles ``.@e``) with two fixed columns on each
 side: workstations ``w`` in the outer column at rows i with (i - 1) mod 3 == 0 (first and last
-row excluded) and an empty column next to them (paper appendix B.1; the human layouts). The
-repair keeps that frame unchanged and may change every storage cell.
+row excluded) and an empty column next to them (the human layouts). The repair keeps that frame
+unchanged and may change every storage cell; a valid layout has exactly N_s shelves, every
+shelf next to an endpoint and every endpoint next to a shelf, and its traversable tiles
+connected. Task model: everything but shelves is traversable; goals alternate endpoint
+(uniform) and workstation (uniform in ``warehouse_even``; in ``warehouse_uneven`` the left
+workstations are 5 times as likely). Measures: environment entropy of the storage area (K = 3)
+and the number of 4-connected shelf components.
 """
 
 from __future__ import annotations
@@ -11,7 +16,8 @@ from __future__ import annotations
 import numpy as np
 
 from nca_qd.errors import NcaQdError
-from nca_qd.repair.rules import AdjacencyRule, CountRule, Rules
+from nca_qd.layouts.base import Construction, GoalKind, LayoutKind, TaskModel
+from nca_qd.layouts.rules import AdjacencyRule, CountRule, Rules
 
 TILES = ".@ew"  # layout alphabet; the storage area (NCA) uses the first three
 GEN_TILES = ".@e"
@@ -104,3 +110,53 @@ def check_frame(layout: np.ndarray, source: str) -> None:
 
 # Paper colours: shelves black, endpoints blue, workstations pink, empty white.
 PALETTE = {".": "white", "@": "black", "e": "#3b6fd6", "w": "#f29ec8"}
+
+# The NCA's seed: this block on an empty storage area, at the public seed maps' offsets at the
+# paper's sizes (they do not centre the rows the same way at both sizes); centred elsewhere.
+SEED_BLOCK = ("ee", "@@", "ee")
+SEED_OFFSETS = {(33, 32): (15, 15), (101, 98): (50, 48)}
+UNEVEN_LEFT_WEIGHT = 5.0
+
+
+class Warehouse(LayoutKind):
+    """A warehouse with even or uneven workstation traffic (``left_weight``)."""
+
+    family = "warehouse"
+    tiles = TILES
+    gen_tiles = GEN_TILES
+    palette = PALETTE
+    construction = Construction(anchors=(SHELF,), endpoint=ENDPOINT, empty=EMPTY,
+                                exact_count=True)
+    seed_block = SEED_BLOCK
+    seed_offsets = SEED_OFFSETS
+    eval_agent_step = 25
+    frame_cols = FRAME
+
+    def __init__(self, name: str, left_weight: float = 1.0):
+        self.name = name
+        self.task = TaskModel(blocked="@", goals=(
+            GoalKind("endpoint", "e"), GoalKind("workstation", "w", left_weight=left_weight)))
+
+    def frame(self, shape):
+        return frame(shape)
+
+    def assemble(self, region):
+        return assemble(region)
+
+    def check_frame(self, layout, source):
+        check_frame(layout, source)
+
+    def rules(self, shape, *, n_shelves=None, n_agents=200):
+        return rules(shape, n_shelves=n_shelves)
+
+    def measures(self, layouts):
+        """Storage-area entropy and shelf components ``[b, 2]``."""
+        from nca_qd.measures import batch_entropy, shelf_components
+
+        layouts = np.asarray(layouts)
+        ent = np.asarray(batch_entropy(storage(layouts), len(GEN_TILES)))
+        return np.stack([ent, shelf_components(layouts, SHELF)], axis=-1)
+
+
+EVEN = Warehouse("warehouse_even")
+UNEVEN = Warehouse("warehouse_uneven", left_weight=UNEVEN_LEFT_WEIGHT)
