@@ -5,7 +5,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: test run bench clean-venv
+.PHONY: test lint run bench clean-venv
 
 $(STAMP): pyproject.toml CMakeLists.txt $(wildcard nca_qd/sim/rhcr/src/*)
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -13,7 +13,13 @@ $(STAMP): pyproject.toml CMakeLists.txt $(wildcard nca_qd/sim/rhcr/src/*)
 	$(PY) -m pip install --quiet -e '.[dev]'
 	touch $(STAMP)
 
-test: $(STAMP)
+# Style (ruff: lint + format) and types of the shared API (mypy), configured in pyproject.toml.
+lint: $(STAMP)
+	$(PY) -m ruff check nca_qd experiments tests benchmarks
+	$(PY) -m ruff format --check nca_qd experiments tests benchmarks
+	$(PY) -m mypy
+
+test: lint
 	$(PY) -m pytest tests
 
 run: $(STAMP)

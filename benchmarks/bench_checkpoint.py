@@ -31,9 +31,17 @@ from nca_qd.qd.emitters import ESEmitters
 from nca_qd.qd.loop import QDLoop
 
 
-def sphere_resumed(dim: int, n_emitters: int, batch: int, iters: int, resumes: int, seed: int = 0,
-                   policy: ck.CheckpointPolicy = ck.CheckpointPolicy(), workdir: Path | None = None,
-                   probe: tuple[int, ...] = ()) -> tuple[float, float, list[dict]]:
+def sphere_resumed(
+    dim: int,
+    n_emitters: int,
+    batch: int,
+    iters: int,
+    resumes: int,
+    seed: int = 0,
+    policy: ck.CheckpointPolicy = ck.CheckpointPolicy(),  # noqa: B008 - frozen, immutable
+    workdir: Path | None = None,
+    probe: tuple[int, ...] = (),
+) -> tuple[float, float, list[dict]]:
     """Normalised QD-score of the sphere run uninterrupted and resumed ``resumes`` times from
     checkpoints (evenly spaced), same seed; plus covariance figures at the ``probe`` iterations."""
     spec = sphere_spec(n=dim)
@@ -82,9 +90,11 @@ def print_drift(drift: list[dict]) -> None:
         rel = max(r for _, r, *_ in e)
         lo, hi = min(x[2] for x in e), max(x[3] for x in e)
         left = max(x[4] for x in e)
-        print(f"  after {row['iteration']:>3} iterations (generations since restart {gens[0]}..{gens[-1]}): "
-              f"||C - I||/||I|| <= {rel:.2e}, eigenvalues in [{lo:.5f}, {hi:.5f}], "
-              f"compact covariance (rank 8) would leave out ||dC||_F / mean diag <= {left:.2g}")
+        print(
+            f"  after {row['iteration']:>3} iterations (generations since restart {gens[0]}..{gens[-1]}): "
+            f"||C - I||/||I|| <= {rel:.2e}, eigenvalues in [{lo:.5f}, {hi:.5f}], "
+            f"compact covariance (rank 8) would leave out ||dC||_F / mean diag <= {left:.2g}"
+        )
 
 
 def maze_checkpoint_sizes(n_elites: int, shared: float, workdir: Path) -> None:
@@ -118,16 +128,22 @@ def maze_checkpoint_sizes(n_elites: int, shared: float, workdir: Path) -> None:
         t0 = time.perf_counter()
         ck.load_checkpoint(path, exp.initial_state(), exp.loop.emitter)
         t_read = time.perf_counter() - t0
-        print(f"  {n_elites:,} elites ({shared:.0%} shared), {'exact' if policy.exact else 'compact'}: "
-              f"{os.path.getsize(path) / 1e6:.1f} MB, write {t_write:.2f} s, read {t_read:.2f} s")
+        print(
+            f"  {n_elites:,} elites ({shared:.0%} shared), {'exact' if policy.exact else 'compact'}: "
+            f"{os.path.getsize(path) / 1e6:.1f} MB, write {t_write:.2f} s, read {t_read:.2f} s"
+        )
 
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="smaller sphere runs")
     ap.add_argument("--seeds", type=int, default=8, help="sphere runs at d=100")
-    ap.add_argument("--shared", type=float, default=0.5,
-                    help="share of optimisation elites that are the result elite of their cell")
+    ap.add_argument(
+        "--shared",
+        type=float,
+        default=0.5,
+        help="share of optimisation elites that are the result elite of their cell",
+    )
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
@@ -145,17 +161,20 @@ def main(argv: list[str] | None = None) -> None:
             t0 = time.perf_counter()
             full, resumed, drift = [], [], []
             for seed in range(seeds):
-                f, r, dr = sphere_resumed(dim, n_em, batch, iters, 5, seed=seed, workdir=work,
-                                          probe=probe if seed == 0 else ())
+                f, r, dr = sphere_resumed(
+                    dim, n_em, batch, iters, 5, seed=seed, workdir=work, probe=probe if seed == 0 else ()
+                )
                 full.append(f)
                 resumed.append(r)
                 drift += dr
             gap = (np.mean(resumed) - np.mean(full)) / np.mean(full)
-            print(f"sphere d={dim} ({n_em} x {batch}, {iters} iterations, seeds 0-{seeds - 1}): "
-                  f"QD-score uninterrupted {_mean_se(full)}, resumed 5 times from compact "
-                  f"checkpoints {_mean_se(resumed)} ({gap:+.2%}; target within 2 %; per seed "
-                  + ", ".join(f"{(r - f) / f:+.1%}" for f, r in zip(full, resumed))
-                  + f") [{time.perf_counter() - t0:.0f} s]")
+            print(
+                f"sphere d={dim} ({n_em} x {batch}, {iters} iterations, seeds 0-{seeds - 1}): "
+                f"QD-score uninterrupted {_mean_se(full)}, resumed 5 times from compact "
+                f"checkpoints {_mean_se(resumed)} ({gap:+.2%}; target within 2 %; per seed "
+                + ", ".join(f"{(r - f) / f:+.1%}" for f, r in zip(full, resumed))
+                + f") [{time.perf_counter() - t0:.0f} s]"
+            )
             print_drift(drift)
 
 

@@ -32,8 +32,7 @@ def bench_sphere(iters: int) -> None:
     from nca_qd.qd.emitters import ESEmitters
     from nca_qd.qd.loop import QDLoop
 
-    loop = QDLoop(ESEmitters(15, 36, 100, 0.5), sphere_batch_objective(), 100,
-                  sphere_spec())
+    loop = QDLoop(ESEmitters(15, 36, 100, 0.5), sphere_batch_objective(), 100, sphere_spec())
     state = loop.init(jax.random.PRNGKey(0))
     state, m, _ = loop.step(state)  # compile
     t0 = time.perf_counter()
@@ -41,9 +40,11 @@ def bench_sphere(iters: int) -> None:
         state, m, _ = loop.step(state)
     wall = time.perf_counter() - t0
     qd = normalised_qd_score(m["qd_score"], 100 * 100)
-    print(f"sphere n=100, CMA-MAE 15x36, {iters} iterations: QD-score {qd:.2f} "
-          f"(paper 64.86), coverage {100 * m['coverage']:.1f} % (paper 83 %), "
-          f"wall {wall:.0f} s ({1000 * wall / max(iters - 1, 1):.1f} ms/iteration)")
+    print(
+        f"sphere n=100, CMA-MAE 15x36, {iters} iterations: QD-score {qd:.2f} "
+        f"(paper 64.86), coverage {100 * m['coverage']:.1f} % (paper 83 %), "
+        f"wall {wall:.0f} s ({1000 * wall / max(iters - 1, 1):.1f} ms/iteration)"
+    )
 
 
 def bench_generation() -> None:
@@ -54,10 +55,12 @@ def bench_generation() -> None:
     for shape, iters, label in (((16, 16), 50, "18x18, C=50"), ((64, 64), 200, "66x66, C_eval=200")):
         seed = np.zeros(shape, np.int32)
         seed[shape[0] // 2 - 1 : shape[0] // 2 + 1, shape[1] // 2 - 1 : shape[1] // 2 + 1] = 1
-        times = _timed(lambda: gen.generate(params, seed, iters), 5 if iters == 50 else 2)
+        times = _timed(lambda s=seed, c=iters: gen.generate(params, s, c), 5 if iters == 50 else 2)
         med = statistics.median(times)
-        print(f"NCA generation b=150 maze {label}: {1000 * med / 150:.3f} ms/environment "
-              f"(median of {len(times)}; paper 60 ms/env at S, 130 ms at S_eval, 16 cores)")
+        print(
+            f"NCA generation b=150 maze {label}: {1000 * med / 150:.3f} ms/environment "
+            f"(median of {len(times)}; paper 60 ms/env at S, 130 ms at S_eval, 16 cores)"
+        )
 
 
 def bench_maze_iteration(iters: int, agent: str) -> None:
@@ -75,18 +78,23 @@ def bench_maze_iteration(iters: int, agent: str) -> None:
         times.append(m["step_seconds"])
     med, mean = statistics.median(times), statistics.mean(times)
     total = mean * exp.n_iterations
-    print(f"maze CMA-MAE iteration (b=150, {agent} agent, 50 episodes): median "
-          f"{med:.3f} s, mean {mean:.3f} s, max {max(times):.3f} s (eigenbasis refresh) over "
-          f"{iters}; the default {cfg.qd.n_evals:,}-evaluation run = {exp.n_iterations} "
-          f"iterations -> {total / 60:.1f} min at the mean (target <= 60 min)")
+    print(
+        f"maze CMA-MAE iteration (b=150, {agent} agent, 50 episodes): median "
+        f"{med:.3f} s, mean {mean:.3f} s, max {max(times):.3f} s (eigenbasis refresh) over "
+        f"{iters}; the default {cfg.qd.n_evals:,}-evaluation run = {exp.n_iterations} "
+        f"iterations -> {total / 60:.1f} min at the mean (target <= 60 min)"
+    )
 
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--sphere-iters", type=int, default=10_000)
     ap.add_argument("--maze-iters", type=int, default=30)
-    ap.add_argument("--maze-agents", default="learned,wall_follower",
-                    help="agents behind the path-length measure (the first is the default)")
+    ap.add_argument(
+        "--maze-agents",
+        default="learned,wall_follower",
+        help="agents behind the path-length measure (the first is the default)",
+    )
     args = ap.parse_args([] if argv is None else argv)
     print("== foundation ==")
     bench_generation()

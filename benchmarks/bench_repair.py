@@ -20,20 +20,19 @@ import time
 
 import numpy as np
 
-from nca_qd.io import load_map
+from nca_qd.io import load_map, reference_maps_dir
+from nca_qd.layouts import warehouse as wh
 from nca_qd.nca import NCAGenerator
 from nca_qd.repair import make_rules, repair
-from nca_qd.layouts import warehouse as wh
 from nca_qd.repair.validator import check
-from nca_qd.io import reference_maps_dir
 
 PAPER = reference_maps_dir() / "warehouse" / "paper_cma-mae_a5_even_33x36_unrepaired.json"
 
 
 def generated(domain: str, region: tuple[int, int], n: int, n_iters: int, seed: int) -> np.ndarray:
     """Full layouts from ``n`` random generators started from the domain seed."""
-    from nca_qd.domains import make_domain
     from experiments.cli import compose_config
+    from nca_qd.domains import make_domain
 
     dom = make_domain(compose_config("repair", [f"domain={domain}"]).domain)
     gen = NCAGenerator(dom.n_tiles)
@@ -53,9 +52,18 @@ def run_set(label: str, domain: str, layouts, rows: list, **opts) -> list:
     statuses = {}
     for r, _ in results:
         statuses[r.status] = statuses.get(r.status, 0) + 1
-    rows.append((label, len(results), statistics.median(times), max(times),
-                 statistics.median(ham) if ham else float("nan"), max(ham) if ham else float("nan"),
-                 sum(ok for _, ok in results), ", ".join(f"{k} {v}" for k, v in sorted(statuses.items()))))
+    rows.append(
+        (
+            label,
+            len(results),
+            statistics.median(times),
+            max(times),
+            statistics.median(ham) if ham else float("nan"),
+            max(ham) if ham else float("nan"),
+            sum(ok for _, ok in results),
+            ", ".join(f"{k} {v}" for k, v in sorted(statuses.items())),
+        )
+    )
     print(f"  done: {label}", flush=True)
     return results
 
@@ -74,15 +82,22 @@ def main(argv: list[str] | None = None) -> None:
     for domain, region in (("warehouse_even", (33, 32)), ("manufacturing", (33, 36))):
         lays = generated(domain, region, args.n_small, 50, args.seed)
         small = run_set(f"(a) {domain} 33x36", domain, lays, rows)
-        full = run_set(f"(d) {domain} 33x36 full MILP", domain, lays[:args.n_full], rows,
-                       method="full", time_limit_s=args.full_limit)
+        full = run_set(
+            f"(d) {domain} 33x36 full MILP",
+            domain,
+            lays[: args.n_full],
+            rows,
+            method="full",
+            time_limit_s=args.full_limit,
+        )
         for (s, _), (f, _) in zip(small, full):
             compare.append((domain, s.hamming, f.hamming, f.status, s.seconds, f.seconds))
     if PAPER.is_file():
         lay = load_map(PAPER, wh.TILES).to_array(wh.TILES)
-        (s, _), = run_set("(b) paper CMA-MAE a=5 even", "warehouse_even", [lay], rows)
-        (f, _), = run_set("(b) ... full MILP", "warehouse_even", [lay], rows, method="full",
-                          time_limit_s=args.full_limit)
+        ((s, _),) = run_set("(b) paper CMA-MAE a=5 even", "warehouse_even", [lay], rows)
+        ((f, _),) = run_set(
+            "(b) ... full MILP", "warehouse_even", [lay], rows, method="full", time_limit_s=args.full_limit
+        )
         compare.append(("paper example", s.hamming, f.hamming, f.status, s.seconds, f.seconds))
     for domain, region in (("warehouse_even", (101, 98)), ("manufacturing", (101, 102))):
         lays = generated(domain, region, args.n_large, 200, args.seed + 1)
@@ -93,8 +108,10 @@ def main(argv: list[str] | None = None) -> None:
     print(" | ".join(head))
     for r in rows:
         print(f"{r[0]} | {r[1]} | {r[2]:.2f} | {r[3]:.2f} | {r[4]:.0f} | {r[5]:.0f} | {r[6]}/{r[1]} | {r[7]}")
-    print("\nneighbourhood vs full MILP (same input): domain | Ham nbhd | Ham full | full status | "
-          "t nbhd s | t full s")
+    print(
+        "\nneighbourhood vs full MILP (same input): domain | Ham nbhd | Ham full | full status | "
+        "t nbhd s | t full s"
+    )
     for c in compare:
         print(f"{c[0]} | {c[1]} | {c[2]} | {c[3]} | {c[4]:.2f} | {c[5]:.2f}")
 

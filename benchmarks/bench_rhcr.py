@@ -20,10 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from nca_qd.io import load_map
+from nca_qd.io import load_map, reference_maps_dir
 from nca_qd.sim.rhcr import simulate_many
 from nca_qd.sim.scenario import tiles_for
-from nca_qd.io import reference_maps_dir
 
 SEEDS = list(range(int(os.environ.get("BENCH_RHCR_SEEDS", "2"))))
 CASES = [  # (layout, scenario, agents, T, seeds, paper's success and throughput at T=5,000)
@@ -41,9 +40,11 @@ def _find(rel: str) -> Path | None:
 
 
 def main() -> None:
-    print("== RHCR (windowed PBS + space-time A*, w=10, h=5); reference C++ RHCR: 26-28 CPU-s "
-          "(paper layout), 40-50 (manufacturing) per 200 agents x 1,000 steps; 6-50 s per "
-          "planning call at 101x102 with 1,400 agents")
+    print(
+        "== RHCR (windowed PBS + space-time A*, w=10, h=5); reference C++ RHCR: 26-28 CPU-s "
+        "(paper layout), 40-50 (manufacturing) per 200 agents x 1,000 steps; 6-50 s per "
+        "planning call at 101x102 with 1,400 agents"
+    )
     for rel, scenario, agents, T, seeds, paper in CASES:
         path = _find(rel)
         if path is None:
@@ -58,13 +59,16 @@ def main() -> None:
         stops = ",".join(str(r.stop_time) for r in runs)
         ok = [r.throughput for r in runs if r.success]
         flowing = f"{np.mean(ok):.3f}" if ok else "-"
-        print(f"{rel} {scenario} agents={agents} T={T} seeds={len(runs)}: "
-              f"cpu_s/run={cpu:.2f} cpu_s/call median={np.median(calls):.3f} "
-              f"p95={np.percentile(calls, 95):.3f} max={calls.max():.2f} "
-              f"throughput={thr.mean():.3f}±{se:.3f} (successful runs {flowing}) "
-              f"success={np.mean([r.success for r in runs]):.0%} stop_time=[{stops}] "
-              f"pbs_failures={sum(r.pbs_failures for r in runs)}/{sum(r.replans for r in runs)} "
-              f"| paper: {paper}", flush=True)
+        print(
+            f"{rel} {scenario} agents={agents} T={T} seeds={len(runs)}: "
+            f"cpu_s/run={cpu:.2f} cpu_s/call median={np.median(calls):.3f} "
+            f"p95={np.percentile(calls, 95):.3f} max={calls.max():.2f} "
+            f"throughput={thr.mean():.3f}±{se:.3f} (successful runs {flowing}) "
+            f"success={np.mean([r.success for r in runs]):.0%} stop_time=[{stops}] "
+            f"pbs_failures={sum(r.pbs_failures for r in runs)}/{sum(r.replans for r in runs)} "
+            f"| paper: {paper}",
+            flush=True,
+        )
 
 
 if __name__ == "__main__":

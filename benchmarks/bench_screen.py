@@ -176,22 +176,25 @@ def screen_figures(layouts, congestion: str) -> tuple[dict, float]:
     from nca_qd.sim.screen import simulate_batch
 
     t0 = time.perf_counter()
-    res = simulate_batch([rows for _, rows in layouts], SCENARIO, AGENTS, T, SEEDS,
-                         congestion=congestion)
+    res = simulate_batch([rows for _, rows in layouts], SCENARIO, AGENTS, T, SEEDS, congestion=congestion)
     wall = time.perf_counter() - t0
-    return {name: [[r.throughput, r.success, float(np.mean(r.crowding))] for r in runs]
-            for (name, _), runs in zip(layouts, res)}, wall
+    return {
+        name: [[r.throughput, r.success, float(np.mean(r.crowding))] for r in runs]
+        for (name, _), runs in zip(layouts, res)
+    }, wall
 
 
 def _spearman(x, y) -> float:
     from scipy.stats import spearmanr
+
     return float(spearmanr(x, y).statistic)
 
 
 def fidelity() -> None:
     layouts = make_layouts()
-    print(f"== fidelity: {len(layouts)} layouts 33x36, {SCENARIO}, {AGENTS} agents, T={T}, "
-          f"{len(SEEDS)} seeds")
+    print(
+        f"== fidelity: {len(layouts)} layouts 33x36, {SCENARIO}, {AGENTS} agents, T={T}, {len(SEEDS)} seeds"
+    )
     t0 = time.perf_counter()
     exact = rhcr_figures(layouts, os.environ.get("BENCH_SCREEN_RHCR_CACHE"))
     print(f"rhcr: {time.perf_counter() - t0:.0f} s wall")
@@ -205,8 +208,10 @@ def fidelity() -> None:
     print(f"per-run congestion agreement ceiling (RHCR's own seed-to-seed spread): {ceiling:.3f}")
     for congestion in ("crowding", "moved"):
         screen, wall = screen_figures(layouts, congestion)
-        print(f"screen congestion={congestion}: {wall:.1f} s wall for the batch "
-              f"({len(layouts) * len(SEEDS)} runs, compilation included)")
+        print(
+            f"screen congestion={congestion}: {wall:.1f} s wall for the batch "
+            f"({len(layouts) * len(SEEDS)} runs, compilation included)"
+        )
         sc_thr = np.array([np.mean([r[0] for r in screen[n]]) for n in names])
         sc_ok = np.array([[r[1] for r in screen[n]] for n in names], bool)
         if congestion == "crowding":
@@ -214,17 +219,26 @@ def fidelity() -> None:
                 print(f"  {n:22s} rhcr {a:6.3f} ok {ea.sum()}/5   screen {b:6.3f} ok {sb.sum()}/5")
         if congestion == "moved":  # every run to the horizon: the crowding signal alone
             crowd = np.array([np.mean([r[2] for r in screen[n]]) for n in names])
-            print(f"spearman of RHCR mean throughput and minus the screen's mean crowding "
-                  f"(full-horizon runs): {_spearman(ex_thr, -crowd):.3f}")
+            print(
+                f"spearman of RHCR mean throughput and minus the screen's mean crowding "
+                f"(full-horizon runs): {_spearman(ex_thr, -crowd):.3f}"
+            )
         rho = _spearman(ex_thr, sc_thr)
         maj = float(np.mean((ex_ok.mean(1) > 0.5) == (sc_ok.mean(1) > 0.5)))
         run = float(np.mean(ex_ok == sc_ok))
-        print(json.dumps({"congestion": congestion, "layouts": len(names),
-                          "spearman_mean_throughput": round(rho, 3),
-                          "congestion_agreement_layout_majority": round(maj, 3),
-                          "congestion_agreement_per_run": round(run, 3),
-                          "rhcr_success_rate": round(float(ex_ok.mean()), 3),
-                          "screen_success_rate": round(float(sc_ok.mean()), 3)}))
+        print(
+            json.dumps(
+                {
+                    "congestion": congestion,
+                    "layouts": len(names),
+                    "spearman_mean_throughput": round(rho, 3),
+                    "congestion_agreement_layout_majority": round(maj, 3),
+                    "congestion_agreement_per_run": round(run, 3),
+                    "rhcr_success_rate": round(float(ex_ok.mean()), 3),
+                    "screen_success_rate": round(float(sc_ok.mean()), 3),
+                }
+            )
+        )
 
 
 def _one_big_run(rows: list[str], n: int, steps: int, repeats: int = 1):
@@ -249,8 +263,10 @@ def speed() -> None:
 
     layouts = make_layouts(50)[:50]
     rows = [r for _, r in layouts]
-    print(f"== speed (congestion='moved', so runs go the full horizon): {len(rows)} layouts x "
-          f"{len(SEEDS)} seeds x {AGENTS} agents x {T} steps")
+    print(
+        f"== speed (congestion='moved', so runs go the full horizon): {len(rows)} layouts x "
+        f"{len(SEEDS)} seeds x {AGENTS} agents x {T} steps"
+    )
     t0 = time.perf_counter()
     simulate_batch(rows, SCENARIO, AGENTS, T, SEEDS, congestion="moved")
     first = time.perf_counter() - t0
@@ -260,21 +276,25 @@ def speed() -> None:
         res = simulate_batch(rows, SCENARIO, AGENTS, T, SEEDS, congestion="moved")
         walls.append(time.perf_counter() - t0)
         cpus.append(time.process_time() - c0)
-    print(f"first call (with compilation) {first:.1f} s; after compilation, best of {REPEATS}: "
-          f"{min(walls):.1f} s wall, {cpus[int(np.argmin(walls))]:.1f} s CPU (all: "
-          f"{', '.join(f'{w:.1f}' for w in walls)} s); "
-          f"mean throughput {np.mean([r.throughput for x in res for r in x]):.3f}")
+    print(
+        f"first call (with compilation) {first:.1f} s; after compilation, best of {REPEATS}: "
+        f"{min(walls):.1f} s wall, {cpus[int(np.argmin(walls))]:.1f} s CPU (all: "
+        f"{', '.join(f'{w:.1f}' for w in walls)} s); "
+        f"mean throughput {np.mean([r.throughput for x in res for r in x]):.3f}"
+    )
     big = _load("human_101x102.json")
     if big is None:
         print("human_101x102.json not found, skipped")
         return
     n, steps = 1400, int(os.environ.get("BENCH_SCREEN_BIG_T", 5000))
     comp, walls, r = _one_big_run(big, n, steps, max(2, REPEATS))
-    print(f"101x102, {n} agents x {steps} steps: {min(walls[1:]):.1f} s wall after compilation "
-          f"(best of {len(walls) - 1}; distance table included; the first call, which compiles "
-          f"this horizon, {walls[0]:.1f} s; compile+10 steps {comp:.1f} s); "
-          f"throughput {r.throughput:.3f}, "
-          f"success {r.success}, stop_time {r.stop_time}")
+    print(
+        f"101x102, {n} agents x {steps} steps: {min(walls[1:]):.1f} s wall after compilation "
+        f"(best of {len(walls) - 1}; distance table included; the first call, which compiles "
+        f"this horizon, {walls[0]:.1f} s; compile+10 steps {comp:.1f} s); "
+        f"throughput {r.throughput:.3f}, "
+        f"success {r.success}, stop_time {r.stop_time}"
+    )
 
 
 def tiled(rows: list[str], ty: int, tx: int) -> list[str]:
@@ -295,10 +315,12 @@ def scale() -> None:
     steps = int(os.environ.get("BENCH_SCREEN_BIG_T", 5000))
     rows = tiled(big, ty, tx)
     comp, walls, r = _one_big_run(rows, n, steps)
-    print(f"== scale: {len(rows)}x{len(rows[0])} ({ty}x{tx} human 101x102), {n} agents x {steps} "
-          f"steps: {walls[0]:.1f} s wall (compiling this horizon included; compile+10 steps "
-          f"{comp:.1f} s); "
-          f"throughput {r.throughput:.3f}, success {r.success}, stop_time {r.stop_time}")
+    print(
+        f"== scale: {len(rows)}x{len(rows[0])} ({ty}x{tx} human 101x102), {n} agents x {steps} "
+        f"steps: {walls[0]:.1f} s wall (compiling this horizon included; compile+10 steps "
+        f"{comp:.1f} s); "
+        f"throughput {r.throughput:.3f}, success {r.success}, stop_time {r.stop_time}"
+    )
 
 
 def fidelity_large() -> None:
@@ -319,26 +341,36 @@ def fidelity_large() -> None:
     seeds, steps = [0, 1], 1000
     cache = os.environ.get("BENCH_SCREEN_RHCR_CACHE")
     done = json.loads(Path(cache).read_text()) if cache and Path(cache).is_file() else {}
-    (h, w), = shapes
-    print(f"== fidelity at {h}x{w}: {len(layouts)} layouts x {agents} agents x seeds {seeds}, "
-          f"T={steps}")
+    ((h, w),) = shapes
+    print(f"== fidelity at {h}x{w}: {len(layouts)} layouts x {agents} agents x seeds {seeds}, T={steps}")
     agree = []
     for n in agents:
         screened = simulate_batch([r for _, r in layouts], SCENARIO, n, steps, seeds)
         for (name, rows), sc in zip(layouts, screened):
             key = f"{name}|{h}x{w}|{n}|{steps}"
             if key not in done:
-                done[key] = [[r.throughput, r.success, r.stop_time]
-                             for r in simulate_many(rows, SCENARIO, n, steps, seeds)]
+                done[key] = [
+                    [r.throughput, r.success, r.stop_time]
+                    for r in simulate_many(rows, SCENARIO, n, steps, seeds)
+                ]
                 if cache:
                     Path(cache).write_text(json.dumps(done))
             for (tp, ok, stop), r in zip(done[key], sc):
                 agree.append(bool(ok) == bool(r.success))
-                print(f"  {name:28s} {n:5d} agents  rhcr {'ok ' if ok else 'CON'} stop {stop:5d} "
-                      f"tp {tp:6.2f} | screen {'ok ' if r.success else 'CON'} stop "
-                      f"{r.stop_time:5d} tp {r.throughput:6.2f}")
-    print(json.dumps({"size": f"{h}x{w}", "runs": len(agree),
-                      "congestion_agreement_per_run": round(float(np.mean(agree)), 3)}))
+                print(
+                    f"  {name:28s} {n:5d} agents  rhcr {'ok ' if ok else 'CON'} stop {stop:5d} "
+                    f"tp {tp:6.2f} | screen {'ok ' if r.success else 'CON'} stop "
+                    f"{r.stop_time:5d} tp {r.throughput:6.2f}"
+                )
+    print(
+        json.dumps(
+            {
+                "size": f"{h}x{w}",
+                "runs": len(agree),
+                "congestion_agreement_per_run": round(float(np.mean(agree)), 3),
+            }
+        )
+    )
 
 
 def main() -> None:

@@ -39,24 +39,36 @@ def summarise(rows: list[dict[str, str]], n_evals: int = 10_000) -> None:
     batch = int(rows[0]["evaluations"]) // int(rows[0]["iteration"])
     step = mean("step_seconds")
     ids = [int(r["iteration"]) for r in rows]
-    print(f"iterations: {len(rows)} (batch {batch}); iteration {ids[0]} {float(first['step_seconds']):.1f} s "
-          f"(reported apart: a run's first includes compilation and the pool's start)")
-    print(f"per iteration (iterations {ids[1] if len(ids) > 1 else ids[0]}..{ids[-1]}): {step:.1f} s wall = "
-          + ", ".join(f"{k.split('_')[0]} {mean(k):.1f} s" for k in STAGES))
+    print(
+        f"iterations: {len(rows)} (batch {batch}); iteration {ids[0]} {float(first['step_seconds']):.1f} s "
+        f"(reported apart: a run's first includes compilation and the pool's start)"
+    )
+    print(
+        f"per iteration (iterations {ids[1] if len(ids) > 1 else ids[0]}..{ids[-1]}): {step:.1f} s wall = "
+        + ", ".join(f"{k.split('_')[0]} {mean(k):.1f} s" for k in STAGES)
+    )
     runs = mean("exact_runs")
-    print(f"exact RHCR: {mean('n_exact'):.1f} of {batch} layouts per iteration "
-          f"({runs:.0f} runs, {mean('exact_seconds') / runs if runs else float('nan'):.2f} s wall "
-          f"per run made); screen x scale minus exact: bias {mean('screen_bias'):+.3f}, "
-          f"mean |error| {mean('screen_mae'):.3f} (throughput)")
+    print(
+        f"exact RHCR: {mean('n_exact'):.1f} of {batch} layouts per iteration "
+        f"({runs:.0f} runs, {mean('exact_seconds') / runs if runs else float('nan'):.2f} s wall "
+        f"per run made); screen x scale minus exact: bias {mean('screen_bias'):+.3f}, "
+        f"mean |error| {mean('screen_mae'):.3f} (throughput)"
+    )
     if rows[0].get("exact_reused") not in (None, ""):  # runs with the evaluation memo
-        print(f"reused (memo or a copy in the batch): repair {mean('repair_reused'):.1f}, "
-              f"exact {mean('exact_reused'):.1f} of {batch} layouts per iteration")
+        print(
+            f"reused (memo or a copy in the batch): repair {mean('repair_reused'):.1f}, "
+            f"exact {mean('exact_reused'):.1f} of {batch} layouts per iteration"
+        )
     iters = n_evals / batch
-    print(f"projected {n_evals:,} evaluations: {iters:.0f} iterations x {step:.1f} s = "
-          f"{iters * step / 3600:.1f} h (target <= 24 h)")
+    print(
+        f"projected {n_evals:,} evaluations: {iters:.0f} iterations x {step:.1f} s = "
+        f"{iters * step / 3600:.1f} h (target <= 24 h)"
+    )
     last = rows[-1]
-    print(f"archive after {last['evaluations']} evaluations: QD-score {float(last['qd_score']):.1f}, "
-          f"coverage {float(last['coverage']):.4f}, best f_res {float(last['best_objective']):.3f}")
+    print(
+        f"archive after {last['evaluations']} evaluations: QD-score {float(last['qd_score']):.1f}, "
+        f"coverage {float(last['coverage']):.4f}, best f_res {float(last['best_objective']):.3f}"
+    )
 
 
 def run(domain: str, iters: int) -> list[dict[str, str]]:
@@ -64,8 +76,10 @@ def run(domain: str, iters: int) -> list[dict[str, str]]:
     from nca_qd.experiment import Experiment
 
     with tempfile.TemporaryDirectory() as tmp:
-        cfg = compose_config("run", [f"domain={domain}", f"qd.n_evals={50 * iters}",
-                                     "qd.progress=false", "output.pictures=false"])
+        cfg = compose_config(
+            "run",
+            [f"domain={domain}", f"qd.n_evals={50 * iters}", "qd.progress=false", "output.pictures=false"],
+        )
         Experiment(cfg, Path(tmp)).run()
         with open(Path(tmp) / "metrics.csv") as fh:
             return list(csv.DictReader(fh))
@@ -76,9 +90,13 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--domain", default="warehouse_even")
     ap.add_argument("--iters", type=int, default=4)
     ap.add_argument("--run-dir", default=None)
-    ap.add_argument("--iterations", default=None, metavar="A-B",
-                    help="with --run-dir: only iterations A..B (e.g. the ones that ran on an "
-                         "otherwise idle machine); the first of them is reported apart")
+    ap.add_argument(
+        "--iterations",
+        default=None,
+        metavar="A-B",
+        help="with --run-dir: only iterations A..B (e.g. the ones that ran on an "
+        "otherwise idle machine); the first of them is reported apart",
+    )
     args = ap.parse_args(argv if argv is not None else [])
     if args.run_dir:
         with open(Path(args.run_dir) / "metrics.csv") as fh:
@@ -86,8 +104,10 @@ def main(argv: list[str] | None = None) -> None:
         if args.iterations:
             lo, _, hi = args.iterations.partition("-")
             rows = [r for r in rows if int(lo) <= int(r["iteration"]) <= int(hi or lo)]
-        print(f"== search cost of {args.run_dir}"
-              + (f", iterations {args.iterations}" if args.iterations else ""))
+        print(
+            f"== search cost of {args.run_dir}"
+            + (f", iterations {args.iterations}" if args.iterations else "")
+        )
     else:
         print(f"== search cost: {args.domain}, {args.iters} CMA-MAE iterations at the paper's settings")
         rows = run(args.domain, args.iters)

@@ -1,6 +1,6 @@
 """``make bench``: every benchmark section in turn (each prints its own figures).
 
-    python -m benchmarks.run_all [section ...]   # sections: foundation, rhcr, repair, screen, search, checkpoint
+python -m benchmarks.run_all [section ...]   # sections: foundation, rhcr, repair, screen, search, checkpoint
 """
 
 from __future__ import annotations

@@ -10,8 +10,8 @@ from __future__ import annotations
 import logging
 import signal
 import sys
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Callable, Sequence
 
 from omegaconf import DictConfig, OmegaConf
 
@@ -79,8 +79,9 @@ def main_guard(body: Callable[[list[str]], int | None]) -> Callable[[], None]:
     SIGTERM) exits 130."""
 
     def wrapped() -> None:
-        logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s: %(message)s",
-                            datefmt="%H:%M:%S")
+        logging.basicConfig(
+            level=logging.WARNING, format="%(asctime)s %(name)s: %(message)s", datefmt="%H:%M:%S"
+        )
         logging.getLogger("nca_qd").setLevel(logging.INFO)
         # SIGTERM (a cluster scheduler's or a session's end, `kill`) stops a run as Ctrl-C
         # does: the run writes its checkpoint before it exits.
@@ -91,8 +92,7 @@ def main_guard(body: Callable[[list[str]], int | None]) -> Callable[[], None]:
             print(f"error: {exc}", file=sys.stderr)
             sys.exit(EXIT_USAGE)
         except KeyboardInterrupt:
-            print("interrupted: the last checkpoint is intact; resume with resume=<run dir>",
-                  file=sys.stderr)
+            print("interrupted: the last checkpoint is intact; resume with resume=<run dir>", file=sys.stderr)
             sys.exit(EXIT_INTERRUPTED)
         sys.exit(code or 0)
 

@@ -10,13 +10,13 @@ Without ``domain`` the alphabet is inferred from the tiles.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 from experiments.cli import compose_config, main_guard
+from nca_qd.domains import domain_class
 from nca_qd.errors import NcaQdError
 from nca_qd.io import load_map
-from nca_qd.domains import domain_class
 
 
 def tiles_and_palette(domain: str | None, chars: set[str]) -> tuple[str, dict[str, str]]:
@@ -31,8 +31,12 @@ def tiles_and_palette(domain: str | None, chars: set[str]) -> tuple[str, dict[st
     return cls.layout_tiles, dict(cls.palette)
 
 
-def render_files(out: str | Path, paths: Sequence[str | Path], titles: Sequence[str] | None = None,
-                 domain: str | None = None) -> None:
+def render_files(
+    out: str | Path,
+    paths: Sequence[str | Path],
+    titles: Sequence[str] | None = None,
+    domain: str | None = None,
+) -> None:
     """Draw the layouts of ``paths`` side by side into the PNG ``out``."""
     from nca_qd.viz import render_layouts
 
@@ -62,10 +66,12 @@ def render_elites(out: str | Path, run_dir: str | Path, elites, size: str = "tra
     if isinstance(elites, int) or (isinstance(elites, str) and elites.isdigit()):
         cells = select_elites(archive["objective"], int(elites))
     else:
-        cells = np.asarray(OmegaConf.to_object(elites) if not isinstance(elites, list) else elites,
-                           dtype=int)
-        bad = [int(c) for c in cells if not (0 <= c < archive["objective"].size)
-               or not np.isfinite(archive["objective"][c])]
+        cells = np.asarray(OmegaConf.to_object(elites) if not isinstance(elites, list) else elites, dtype=int)
+        bad = [
+            int(c)
+            for c in cells
+            if not (0 <= c < archive["objective"].size) or not np.isfinite(archive["objective"][c])
+        ]
         if bad:
             raise NcaQdError(f"{run_dir}: no elite in cell(s) {bad}")
     if len(cells) == 0:

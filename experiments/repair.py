@@ -16,15 +16,26 @@ from pathlib import Path
 from experiments.cli import compose_config, main_guard
 from nca_qd.errors import NcaQdError
 from nca_qd.io import MapFile, array_to_rows, load_map, save_map
-from nca_qd.repair import make_rules, repair, tiles_of
 from nca_qd.layouts import LAYOUTS, get_layout
+from nca_qd.repair import make_rules, repair, tiles_of
 from nca_qd.repair.validator import check
 
 log = logging.getLogger("nca_qd.repair")
 
 # Repair options: the command line's value, else the domain config's repair block.
-OPTIONS = ("method", "time_limit_s", "improve_time_s", "improve_windows", "window", "window_time_s",
-           "max_window_cells", "max_violation_fraction", "threads", "seed", "milp_time_s")
+OPTIONS = (
+    "method",
+    "time_limit_s",
+    "improve_time_s",
+    "improve_windows",
+    "window",
+    "window_time_s",
+    "max_window_cells",
+    "max_violation_fraction",
+    "threads",
+    "seed",
+    "milp_time_s",
+)
 
 
 def domain_default(cfg, key: str, n_rows: int):
@@ -48,8 +59,10 @@ def main(argv: list[str]) -> int:
     path = Path(cfg.layout)
     mapfile = load_map(path, tiles)
     layout = mapfile.to_array(tiles)
-    opts = {key: (cfg[key] if cfg[key] is not None else domain_default(cfg, key, layout.shape[0]))
-            for key in OPTIONS}
+    opts = {
+        key: (cfg[key] if cfg[key] is not None else domain_default(cfg, key, layout.shape[0]))
+        for key in OPTIONS
+    }
     opts = {key: value for key, value in opts.items() if value is not None}
     try:
         get_layout(domain).check_frame(layout, str(path))
@@ -59,19 +72,33 @@ def main(argv: list[str]) -> int:
         raise NcaQdError(msg if msg.startswith(str(path)) else f"{path}: {msg}") from None
     res = repair(domain, layout, n_shelves=cfg.n_shelves, n_agents=cfg.n_agents, **opts)
     valid = res.layout is not None and check(res.layout, rules) is None
-    line = {"status": res.status, "hamming": res.hamming, "similarity": round(res.similarity, 6),
-            "seconds": round(res.seconds, 3), "valid": valid, "objective": res.objective,
-            "method": res.method, "lower_bound": res.details.get("lower_bound")}
+    line = {
+        "status": res.status,
+        "hamming": res.hamming,
+        "similarity": round(res.similarity, 6),
+        "seconds": round(res.seconds, 3),
+        "valid": valid,
+        "objective": res.objective,
+        "method": res.method,
+        "lower_bound": res.details.get("lower_bound"),
+    }
     if res.layout is not None:
         extra = dict(mapfile.extra)
         extra["repair"] = {k: line[k] for k in ("status", "hamming", "similarity", "seconds")}
-        save_map(cfg.out, MapFile(name=f"{mapfile.name}_repaired",
-                                  rows=array_to_rows(res.layout, tiles), extra=extra))
+        save_map(
+            cfg.out,
+            MapFile(name=f"{mapfile.name}_repaired", rows=array_to_rows(res.layout, tiles), extra=extra),
+        )
         if cfg.render:
             from nca_qd.viz import render_layouts
 
-            render_layouts(cfg.render, [layout, res.layout], tiles, dict(get_layout(domain).palette),
-                           ["unrepaired", f"repaired (Hamming {res.hamming})"])
+            render_layouts(
+                cfg.render,
+                [layout, res.layout],
+                tiles,
+                dict(get_layout(domain).palette),
+                ["unrepaired", f"repaired (Hamming {res.hamming})"],
+            )
     print(json.dumps(line), flush=True)
     return 0 if res.layout is not None else 1
 

@@ -23,7 +23,7 @@ def _split_run_dir(argv: list[str]) -> tuple[str | None, list[str]]:
     for arg in argv:
         key = next((k for k in RUN_DIR_KEYS if arg.startswith(k)), None)
         if key:
-            run_dir = arg[len(key):]
+            run_dir = arg[len(key) :]
         else:
             rest.append(arg)
     return run_dir, rest
@@ -42,8 +42,7 @@ def main(argv: list[str]) -> int:
                 key, value = a.split("=", 1)
                 saved = cfg[key]["name"]
                 if value != saved:
-                    raise NcaQdError(f"resume directory {resume} holds a {key} {saved!r} run, "
-                                     f"not {value!r}")
+                    raise NcaQdError(f"resume directory {resume} holds a {key} {saved!r} run, not {value!r}")
         extra = [a for a in rest if not a.startswith(("domain=", "algo="))]
         cfg = merge_overrides(cfg, extra)
         run_path = Path(resume)

@@ -15,8 +15,8 @@ import io
 import json
 import math
 import os
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
-from typing import Callable, Iterator
 
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
@@ -61,8 +61,17 @@ def _rhcr(scen: Scenario, s: RunSettings, seeds: list[int]) -> Iterator:
     from nca_qd.sim.rhcr import simulate_scenario
 
     def one(seed: int):
-        return simulate_scenario(scen, s.agents, s.T, seed, window=s.window, replan=s.replan,
-                                 time_limit_s=s.time_limit_s, record_paths=s.record_paths, **s.rhcr)
+        return simulate_scenario(
+            scen,
+            s.agents,
+            s.T,
+            seed,
+            window=s.window,
+            replan=s.replan,
+            time_limit_s=s.time_limit_s,
+            record_paths=s.record_paths,
+            **s.rhcr,
+        )
 
     with ThreadPoolExecutor(max_workers=max(1, min(s.threads, len(seeds)))) as pool:
         yield from pool.map(one, seeds)  # the core releases the GIL: runs are parallel
@@ -72,8 +81,9 @@ def _screen(scen: Scenario, s: RunSettings, seeds: list[int]) -> Iterator:
     # JAX screening simulator: all seeds as one vmapped batch (window and time limit unused).
     from nca_qd.sim.screen import simulate_scenarios
 
-    yield from simulate_scenarios([scen], s.agents, s.T, seeds, replan=s.replan,
-                                  record_paths=s.record_paths)[0]
+    yield from simulate_scenarios([scen], s.agents, s.T, seeds, replan=s.replan, record_paths=s.record_paths)[
+        0
+    ]
 
 
 # name -> loader returning the simulator (a loader may refuse with a one-line NcaQdError).
@@ -118,10 +128,14 @@ def summarize(runs: list[dict]) -> dict:
     """Mean and standard error of throughput over all runs, and the success rate."""
     thr = np.array([r["throughput"] for r in runs], dtype=float)
     se = float(thr.std(ddof=1) / math.sqrt(len(thr))) if len(thr) > 1 else 0.0
-    return {"summary": True, "runs": len(runs), "throughput_mean": round(float(thr.mean()), 9),
-            "throughput_se": round(se, 9),
-            "success_rate": round(float(np.mean([r["success"] for r in runs])), 6),
-            "cpu_seconds_mean": round(float(np.mean([r["cpu_seconds"] for r in runs])), 3)}
+    return {
+        "summary": True,
+        "runs": len(runs),
+        "throughput_mean": round(float(thr.mean()), 9),
+        "throughput_se": round(se, 9),
+        "success_rate": round(float(np.mean([r["success"] for r in runs])), 6),
+        "cpu_seconds_mean": round(float(np.mean([r["cpu_seconds"] for r in runs])), 3),
+    }
 
 
 def _write_paths(path: str, recorded: dict) -> None:

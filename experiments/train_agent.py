@@ -45,8 +45,10 @@ def main(argv: list[str]) -> int:
     cfg.ship_only = False
     run = AgentRun(cfg, run_path)
     tree = run.load()[0] if ship_only else run.run(resume=bool(resume))
-    print(f"run directory: {run_path}  best held-out success {float(tree['best_success']):.3f} "
-          f"at update {int(tree['best_update'])}")
+    print(
+        f"run directory: {run_path}  best held-out success {float(tree['best_success']):.3f} "
+        f"at update {int(tree['best_update'])}"
+    )
     if cfg.ship or ship_only:
         out = run.ship(tree, cfg.ship_dir)
         print(f"shipped to {out}")

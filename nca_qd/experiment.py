@@ -51,9 +51,19 @@ from nca_qd.qd.loop import QDLoop, QDState, archive_fields_to_arrays, archive_sp
 log = logging.getLogger("nca_qd.run")
 
 METRIC_COLUMNS = [
-    "iteration", "evaluations", "qd_score", "coverage", "best_objective", "n_elites",
-    "opt_qd_score", "opt_coverage", "opt_best_objective", "batch_best", "batch_added",
-    "step_seconds", "wall_seconds",
+    "iteration",
+    "evaluations",
+    "qd_score",
+    "coverage",
+    "best_objective",
+    "n_elites",
+    "opt_qd_score",
+    "opt_coverage",
+    "opt_best_objective",
+    "batch_best",
+    "batch_added",
+    "step_seconds",
+    "wall_seconds",
 ]
 CONFIG_FILE, METRICS_FILE, CHECKPOINT_FILE = "config.yaml", "metrics.csv", "checkpoint.npz"
 LEGACY_CHECKPOINT_FILE = "checkpoint.msgpack"  # dense msgpack of earlier versions
@@ -73,16 +83,25 @@ def validate_config(cfg: DictConfig) -> None:
         if isinstance(value, bool) or not isinstance(value, (int, float)) or value <= 0:
             raise NcaQdError(f"{path} must be a positive number, got {value!r}")
 
-    for p in ("qd.n_evals", "qd.n_emitters", "qd.batch_size", "qd.checkpoint_every",
-              "domain.nca_iters.train", "domain.nca_iters.eval"):
+    for p in (
+        "qd.n_evals",
+        "qd.n_emitters",
+        "qd.batch_size",
+        "qd.checkpoint_every",
+        "domain.nca_iters.train",
+        "domain.nca_iters.eval",
+    ):
         positive_int(p)
     positive_float("qd.sigma0")
     if not isinstance(cfg.seed, int) or isinstance(cfg.seed, bool):
         raise NcaQdError(f"seed must be an integer, got {cfg.seed!r}")
     for which in ("train", "eval"):
         size = OmegaConf.select(cfg, f"domain.size.{which}")
-        if (size is None or len(size) != 2
-                or not all(isinstance(s, int) and not isinstance(s, bool) and s > 1 for s in size)):
+        if (
+            size is None
+            or len(size) != 2
+            or not all(isinstance(s, int) and not isinstance(s, bool) and s > 1 for s in size)
+        ):
             raise NcaQdError(f"domain.size.{which} must be two integers > 1, got {size!r}")
     lr = OmegaConf.select(cfg, "qd.archive.learning_rate")
     if not isinstance(lr, (int, float)) or not 0 <= lr <= 1:
@@ -105,14 +124,19 @@ class Experiment:
         self.metric_columns = METRIC_COLUMNS + list(self.objective.metric_names)
         self.n_iterations = math.ceil(cfg.qd.n_evals / self.loop.batch_size)
         self.checkpoint_policy = checkpoint.CheckpointPolicy.from_config(
-            OmegaConf.to_container(cfg.checkpoint) if cfg.get("checkpoint") is not None else None)
+            OmegaConf.to_container(cfg.checkpoint) if cfg.get("checkpoint") is not None else None
+        )
         snap = cfg.get("snapshot") or {}
         if not isinstance(snap.get("enabled", False), bool):
             raise NcaQdError(f"snapshot.enabled must be true or false, got {snap.get('enabled')!r}")
         base = self.checkpoint_policy
         snapshot_policy = checkpoint.CheckpointPolicy(  # validated even while disabled
-            exact=False, restart_dtype="int8", covariance_rank=base.covariance_rank,
-            covariance_tolerance=base.covariance_tolerance, exact_elites=snap.get("exact_elites", 64))
+            exact=False,
+            restart_dtype="int8",
+            covariance_rank=base.covariance_rank,
+            covariance_tolerance=base.covariance_tolerance,
+            exact_elites=snap.get("exact_elites", 64),
+        )
         self.snapshot_policy = snapshot_policy if snap.get("enabled", False) else None
         # What the checkpoint's results depend on beyond the config (the exact simulator).
         self.simulator = getattr(self.objective.evaluator, "simulator_version", None)
@@ -126,14 +150,24 @@ class Experiment:
         # so a kill between the two writes loses nothing and replays the same search.
         t0 = time.perf_counter()
         self.objective.save_state(self.run_dir)
-        meta = {"wall_seconds": float(wall), "algo": str(self.cfg.algo.name),
-                "domain": str(self.cfg.domain.name), "dim": int(self.loop.dim),
-                "simulator": self.simulator}
-        checkpoint.save_checkpoint(self.run_dir / CHECKPOINT_FILE, state, self.loop.emitter,
-                                   self.checkpoint_policy, meta)
+        meta = {
+            "wall_seconds": float(wall),
+            "algo": str(self.cfg.algo.name),
+            "domain": str(self.cfg.domain.name),
+            "dim": int(self.loop.dim),
+            "simulator": self.simulator,
+        }
+        checkpoint.save_checkpoint(
+            self.run_dir / CHECKPOINT_FILE, state, self.loop.emitter, self.checkpoint_policy, meta
+        )
         if self.snapshot_policy is not None:
-            checkpoint.save_checkpoint(self.run_dir / SNAPSHOT_FILE, state, self.loop.emitter,
-                                       self.snapshot_policy, {**meta, "snapshot": True})
+            checkpoint.save_checkpoint(
+                self.run_dir / SNAPSHOT_FILE,
+                state,
+                self.loop.emitter,
+                self.snapshot_policy,
+                {**meta, "snapshot": True},
+            )
         legacy = self.run_dir / LEGACY_CHECKPOINT_FILE
         if legacy.exists():  # superseded by the sparse checkpoint just written
             legacy.unlink()
@@ -153,7 +187,8 @@ class Experiment:
                 raise NcaQdError(
                     f"{path} was scored with exact simulator {saved}, this nca-qd has "
                     f"{self.simulator}: its archive would mix two simulators; start a new run "
-                    "(or use the nca-qd version that made it)")
+                    "(or use the nca-qd version that made it)"
+                )
             wall = float(meta.get("wall_seconds", 0.0))
         elif legacy.is_file():
             log.info("resuming from a dense %s of an earlier version", LEGACY_CHECKPOINT_FILE)
@@ -199,8 +234,14 @@ class Experiment:
 
         cfg = self.cfg
         start_iter = int(state.iteration)
-        bar = tqdm(total=self.n_iterations, initial=start_iter, disable=not cfg.qd.progress,
-                   desc=f"{cfg.algo.name} {cfg.domain.name}", unit="it", dynamic_ncols=True)
+        bar = tqdm(
+            total=self.n_iterations,
+            initial=start_iter,
+            disable=not cfg.qd.progress,
+            desc=f"{cfg.algo.name} {cfg.domain.name}",
+            unit="it",
+            dynamic_ncols=True,
+        )
         last_saved = start_iter
         try:
             with (self.run_dir / METRICS_FILE).open("a", newline="") as fh:
@@ -215,16 +256,21 @@ class Experiment:
                     # metrics row past the checkpoint, which resume drops and recomputes.
                     state, wall = new_state, metrics["wall_seconds"]
                     bar.update(1)
-                    bar.set_postfix(qd=f"{metrics['qd_score']:.4g}",
-                                    cov=f"{metrics['coverage']:.3f}")
+                    bar.set_postfix(qd=f"{metrics['qd_score']:.4g}", cov=f"{metrics['coverage']:.3f}")
                     it = metrics["iteration"]
                     if it % cfg.qd.checkpoint_every == 0 or it == self.n_iterations:
                         self.save_checkpoint(state, wall)
                         last_saved = it
-                        log.info("iter %d/%d evals %d qd_score %.4g coverage %.4f best %.4g "
-                                 "(%.3f s/iter)", it, self.n_iterations, metrics["evaluations"],
-                                 metrics["qd_score"], metrics["coverage"],
-                                 metrics["best_objective"], metrics["step_seconds"])
+                        log.info(
+                            "iter %d/%d evals %d qd_score %.4g coverage %.4f best %.4g (%.3f s/iter)",
+                            it,
+                            self.n_iterations,
+                            metrics["evaluations"],
+                            metrics["qd_score"],
+                            metrics["coverage"],
+                            metrics["best_objective"],
+                            metrics["step_seconds"],
+                        )
         except KeyboardInterrupt:
             if int(state.iteration) != last_saved:
                 self.save_checkpoint(state, wall)
@@ -244,8 +290,12 @@ class Experiment:
         """Archives as ``.npz`` and, unless disabled, every picture."""
         spec = self.loop.spec
         for which, archive in (("result", state.res_archive), ("opt", state.opt_archive)):
-            archive_io.save_archive(self.run_dir / f"archive_{which}.npz",
-                                    checkpoint.archive_elites(archive), spec.cells, spec.ranges)
+            archive_io.save_archive(
+                self.run_dir / f"archive_{which}.npz",
+                checkpoint.archive_elites(archive),
+                spec.cells,
+                spec.ranges,
+            )
         if self.cfg.output.pictures:
             self.write_pictures(state)
 
@@ -256,9 +306,14 @@ class Experiment:
         names = list(self.cfg.domain.measures.names)
         spec = self.loop.spec
         for which, archive in (("result", state.res_archive), ("opt", state.opt_archive)):
-            viz.archive_heatmap(self.run_dir / f"archive_{which}.png",
-                                np.asarray(archive.fitnesses[:, 0]), spec.cells, spec.ranges,
-                                names, title=f"{which} archive ({self.cfg.algo.name}, {d.name})")
+            viz.archive_heatmap(
+                self.run_dir / f"archive_{which}.png",
+                np.asarray(archive.fitnesses[:, 0]),
+                spec.cells,
+                spec.ranges,
+                names,
+                title=f"{which} archive ({self.cfg.algo.name}, {d.name})",
+            )
         viz.metric_curves(self.run_dir / "curves.png", self.run_dir / METRICS_FILE)
         genotypes, cells = self.best_elites(state, int(self.cfg.output.n_best))
         if len(genotypes) == 0:
@@ -267,8 +322,13 @@ class Experiment:
             regions = generate(d, self.generator, genotypes, which)
             layouts = [d.assemble(r) for r in regions]
             h, w = layouts[0].shape
-            viz.render_layouts(self.run_dir / f"best_{which}.png", layouts, d.layout_tiles,
-                               d.palette, [f"cell {c} ({h}x{w})" for c in cells])
+            viz.render_layouts(
+                self.run_dir / f"best_{which}.png",
+                layouts,
+                d.layout_tiles,
+                d.palette,
+                [f"cell {c} ({h}x{w})" for c in cells],
+            )
             if self.cfg.domain.get("repair") is not None and self.cfg.output.get("repaired", True):
                 self._render_repaired(which, layouts, cells)
 
@@ -289,10 +349,10 @@ class Experiment:
         for lay, res, c in zip(layouts, out, cells):
             ok = getattr(res, "layout", None) is not None
             shown.append(res.layout if ok else lay)
-            titles.append(f"cell {c} repaired, Hamming {res.hamming}" if ok
-                          else f"cell {c}: repair failed")
-        viz.render_layouts(self.run_dir / f"best_{which}_repaired.png", shown, d.layout_tiles,
-                           d.palette, titles)
+            titles.append(f"cell {c} repaired, Hamming {res.hamming}" if ok else f"cell {c}: repair failed")
+        viz.render_layouts(
+            self.run_dir / f"best_{which}_repaired.png", shown, d.layout_tiles, d.palette, titles
+        )
 
 
 def select_elites(objective: np.ndarray, n: int) -> np.ndarray:
@@ -333,11 +393,13 @@ def load_archive(run_dir: str | Path, which: str = "result") -> dict[str, Any]:
         ckpt = Path(run_dir) / SNAPSHOT_FILE
     legacy = Path(run_dir) / LEGACY_CHECKPOINT_FILE
     if not ckpt.is_file() and not legacy.is_file():
-        raise NcaQdError(f"{path} not found and no {CHECKPOINT_FILE} beside it "
-                         "(has the run finished an iteration yet?)")
+        raise NcaQdError(
+            f"{path} not found and no {CHECKPOINT_FILE} beside it (has the run finished an iteration yet?)"
+        )
     archive, iteration = archive_from_checkpoint(ckpt if ckpt.is_file() else legacy, which)
-    log.info("%s: no %s yet; using the archive of its checkpoint (iteration %d)",
-             run_dir, path.name, iteration)
+    log.info(
+        "%s: no %s yet; using the archive of its checkpoint (iteration %d)", run_dir, path.name, iteration
+    )
     return archive
 
 
@@ -348,8 +410,10 @@ def archive_from_checkpoint(path: str | Path, which: str = "result") -> tuple[di
     if path.suffix == ".npz":
         arrays, meta = checkpoint.read_checkpoint(path)
         grid = arrays["grid_cells"].tolist(), arrays["grid_ranges"].tolist()
-        return (archive_io.archive_view(checkpoint.archive_from_arrays(arrays, which), *grid),
-                int(meta["iteration"]))
+        return (
+            archive_io.archive_view(checkpoint.archive_from_arrays(arrays, which), *grid),
+            int(meta["iteration"]),
+        )
     from flax import serialization
 
     try:  # a dense msgpack checkpoint of an earlier version

@@ -17,15 +17,15 @@ these protocols:
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import jax
 import numpy as np
 
-__all__ = ["CompactEmitter", "Emitter", "EvalBatch", "Evaluator", "HostEvaluator",
-           "ScoringContext"]
+__all__ = ["CompactEmitter", "Emitter", "EvalBatch", "Evaluator", "HostEvaluator", "ScoringContext"]
 
 
 @dataclass
@@ -80,8 +80,7 @@ class ScoringContext:
 class Evaluator(Protocol):
     """A batched scorer of generated regions; scorers that need no context ignore it."""
 
-    def __call__(self, regions: Any, key: jax.Array,
-                 context: ScoringContext | None = None) -> EvalBatch: ...
+    def __call__(self, regions: Any, key: jax.Array, context: ScoringContext | None = None) -> EvalBatch: ...
 
 
 @runtime_checkable
@@ -91,8 +90,7 @@ class HostEvaluator(Protocol):
 
     metric_names: tuple[str, ...]
 
-    def __call__(self, regions: Any, key: jax.Array,
-                 context: ScoringContext | None = None) -> EvalBatch: ...
+    def __call__(self, regions: Any, key: jax.Array, context: ScoringContext | None = None) -> EvalBatch: ...
 
     def save_state(self, run_dir: str | Path) -> None: ...
 
@@ -110,15 +108,17 @@ class Emitter(Protocol):
 
     def ask(self, state: Any, archive: Any, key: jax.Array) -> tuple[jax.Array, Any]: ...
 
-    def tell(self, state: Any, archive: Any, solutions: jax.Array, fitness: jax.Array,
-             info: Any, key: jax.Array) -> Any: ...
+    def tell(
+        self, state: Any, archive: Any, solutions: jax.Array, fitness: jax.Array, info: Any, key: jax.Array
+    ) -> Any: ...
 
 
 @runtime_checkable
 class CompactEmitter(Protocol):
     """An emitter whose state has a smaller checkpoint form (CMA-ES covariances)."""
 
-    def compact_state(self, state: Any, rank: int,
-                      tolerance: float) -> tuple[dict[str, np.ndarray], dict]: ...
+    def compact_state(
+        self, state: Any, rank: int, tolerance: float
+    ) -> tuple[dict[str, np.ndarray], dict]: ...
 
     def expand_state(self, arrays: dict[str, np.ndarray], template: Any) -> Any: ...

@@ -95,8 +95,7 @@ def load_map(path: str | os.PathLike, tiles: str | None = None) -> MapFile:
 def save_map(path: str | os.PathLike, mapfile: MapFile) -> None:
     """Write a map file atomically, in the paper's format (name, layout, n_row, n_col, extras)."""
     n_row, n_col = mapfile.shape
-    data = {"name": mapfile.name, **mapfile.extra, "n_row": n_row, "n_col": n_col,
-            "layout": mapfile.rows}
+    data = {"name": mapfile.name, **mapfile.extra, "n_row": n_row, "n_col": n_col, "layout": mapfile.rows}
     atomic_write_text(path, json.dumps(data, indent=4))
 
 

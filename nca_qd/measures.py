@@ -14,7 +14,7 @@ import jax.numpy as jnp
 def pattern_ids(layout: jax.Array, n_tiles: int) -> jax.Array:
     """Index in ``[0, K^4)`` of every overlapping 2x2 window of ``layout [H, W]`` -> ``[H-1, W-1]``."""
     k = n_tiles
-    return (layout[:-1, :-1] * k**3 + layout[:-1, 1:] * k**2 + layout[1:, :-1] * k + layout[1:, 1:])
+    return layout[:-1, :-1] * k**3 + layout[:-1, 1:] * k**2 + layout[1:, :-1] * k + layout[1:, 1:]
 
 
 def entropy(layout: jax.Array, n_tiles: int) -> jax.Array:
@@ -52,7 +52,7 @@ def shelf_components(layouts, shelf: int):
     return out.reshape(layouts.shape[:-2])
 
 
-def station_count(layouts, stations) -> "jax.Array":
+def station_count(layouts, stations) -> jax.Array:
     """Number of tiles whose type is any of ``stations`` in each layout ``[b, H, W]`` -> ``[b]``."""
     layouts = jnp.asarray(layouts)
     return sum(tile_count(layouts, int(s)) for s in stations)

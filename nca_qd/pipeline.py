@@ -2,7 +2,8 @@
 
 ``make_objective(domain, generator, run_cfg)`` returns ``f(solutions [b, d], key, context)
 -> EvalBatch``: the whole batch of NCA generators produces its environments in one vmapped
-call, then the domain scores them (for the maze, one more jitted call; for domains with repair and simulation, the
+call, then the domain scores them (for the maze, one more jitted call; for domains with repair and
+simulation, the
 domain's host-side pipeline).
 """
 
@@ -22,8 +23,14 @@ def make_generator(domain: Domain) -> NCAGenerator:
     return NCAGenerator(n_tiles=domain.n_tiles)
 
 
-def generate(domain: Domain, generator: NCAGenerator, solutions, which: str = "train",
-             shape: tuple[int, int] | None = None, n_iters: int | None = None) -> np.ndarray:
+def generate(
+    domain: Domain,
+    generator: NCAGenerator,
+    solutions,
+    which: str = "train",
+    shape: tuple[int, int] | None = None,
+    n_iters: int | None = None,
+) -> np.ndarray:
     """Generated regions ``[b, h, w]`` at the training or evaluation size (or any ``shape``)."""
     shape = shape or domain.gen_shape(which)
     n_iters = n_iters or domain.nca_iters(which)

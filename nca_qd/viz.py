@@ -7,7 +7,7 @@ itself, and in Jupyter the inline backend keeps working. Files are written with 
 from __future__ import annotations
 
 import os
-from typing import Mapping, Sequence
+from collections.abc import Mapping, Sequence
 
 import matplotlib.pyplot as plt
 import numpy as np
@@ -60,8 +60,9 @@ def render_layouts(
     hmax = max(l.shape[0] for l in layouts)
     wsum = sum(l.shape[1] for l in layouts)
     scale = max(tile_inches, 3.0 / hmax)
-    fig, axes = plt.subplots(1, n, figsize=(max(3.0, wsum * scale + n * 0.3), hmax * scale + 0.5),
-                             squeeze=False)
+    fig, axes = plt.subplots(
+        1, n, figsize=(max(3.0, wsum * scale + n * 0.3), hmax * scale + 0.5), squeeze=False
+    )
     import textwrap
 
     for ax, lay, title in zip(axes[0], layouts, titles):
@@ -76,8 +77,14 @@ def archive_heatmap(path, objective: np.ndarray, cells, ranges, names, title: st
     grid = np.where(np.isfinite(grid), grid, np.nan)
     fig, ax = plt.subplots(figsize=(6, 4.5))
     (x0, x1), (y0, y1) = ranges[0], ranges[1]
-    im = ax.imshow(grid.T, origin="lower", aspect="auto", extent=(x0, x1, y0, y1),
-                   cmap="viridis", interpolation="nearest")
+    im = ax.imshow(
+        grid.T,
+        origin="lower",
+        aspect="auto",
+        extent=(x0, x1, y0, y1),
+        cmap="viridis",
+        interpolation="nearest",
+    )
     ax.set_xlabel(names[0])
     ax.set_ylabel(names[1])
     fig.colorbar(im, ax=ax, label="objective")
@@ -96,8 +103,9 @@ def metric_curves(path, metrics_csv) -> None:
         return
     evals = [float(r["evaluations"]) for r in rows]
     fig, axes = plt.subplots(1, 3, figsize=(12, 3.2))
-    for ax, key, label in zip(axes, ("qd_score", "coverage", "best_objective"),
-                              ("QD-score", "coverage", "best objective")):
+    for ax, key, label in zip(
+        axes, ("qd_score", "coverage", "best_objective"), ("QD-score", "coverage", "best objective")
+    ):
         ax.plot(evals, [float(r[key]) for r in rows])
         ax.set_xlabel("evaluations")
         ax.set_title(label, fontsize=9)

@@ -28,9 +28,16 @@ if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
 
 # A short maze run (5 iterations of 8): written once per session, read by test_run's checks
 # and by the notebook test (which would otherwise train its own).
-TINY_MAZE = ["domain=maze", "qd.n_emitters=2", "qd.batch_size=4", "qd.n_evals=40",
-             "qd.checkpoint_every=2", "domain.agent.episodes=3", "output.n_best=2",
-             "qd.progress=false"]
+TINY_MAZE = [
+    "domain=maze",
+    "qd.n_emitters=2",
+    "qd.batch_size=4",
+    "qd.n_evals=40",
+    "qd.checkpoint_every=2",
+    "domain.agent.episodes=3",
+    "output.n_best=2",
+    "qd.progress=false",
+]
 
 
 @pytest.fixture(scope="session")

@@ -18,17 +18,40 @@ from nca_qd.domains.maze import run_agent, solve_start_goal
 from nca_qd.sim import maze_agent as ma
 
 
-
 def tiny_cfg(**over):
-    cfg = OmegaConf.create({
-        "n_envs": 8, "horizon": 16, "interior": [2, 2],
-        "ppo": {"gamma": 0.99, "gae_lambda": 0.95, "clip": 0.2, "vf_coef": 0.5, "ent_coef": 0.0,
-                "lr": 3e-3, "max_grad_norm": 0.5, "epochs": 2, "minibatches": 2},
-        "levels": {"method": "dr", "buffer_size": 8, "min_fill": 2, "replay_prob": 0.5,
-                   "edit_prob": 0.5, "max_edits": 2, "temperature": 0.3, "staleness": 0.3,
-                   "density": [0.0, 0.0], "tries": 1,
-                   "nca_prob": 0.0, "nca_sigma": [0.2, 1.0], "nca_iters": 3},
-    })
+    cfg = OmegaConf.create(
+        {
+            "n_envs": 8,
+            "horizon": 16,
+            "interior": [2, 2],
+            "ppo": {
+                "gamma": 0.99,
+                "gae_lambda": 0.95,
+                "clip": 0.2,
+                "vf_coef": 0.5,
+                "ent_coef": 0.0,
+                "lr": 3e-3,
+                "max_grad_norm": 0.5,
+                "epochs": 2,
+                "minibatches": 2,
+            },
+            "levels": {
+                "method": "dr",
+                "buffer_size": 8,
+                "min_fill": 2,
+                "replay_prob": 0.5,
+                "edit_prob": 0.5,
+                "max_edits": 2,
+                "temperature": 0.3,
+                "staleness": 0.3,
+                "density": [0.0, 0.0],
+                "tries": 1,
+                "nca_prob": 0.0,
+                "nca_sigma": [0.2, 1.0],
+                "nca_iters": 3,
+            },
+        }
+    )
     return OmegaConf.merge(cfg, OmegaConf.create(over))
 
 
@@ -64,15 +87,17 @@ def test_view_matches_definition_everywhere_with_offgrid_walls_and_goal():
     rows, cols, dirs = np.meshgrid(np.arange(4), np.arange(6), np.arange(4), indexing="ij")
     pos = np.stack([rows.ravel(), cols.ravel()], 1)
     views = jax.jit(jax.vmap(lambda p, d: ma.observe(env, ma.AgentState(p, d))))(
-        jnp.asarray(pos), jnp.asarray(dirs.ravel()))
+        jnp.asarray(pos), jnp.asarray(dirs.ravel())
+    )
     views = np.asarray(views)
     for k in range(len(pos)):
         np.testing.assert_array_equal(views[k], reference_view(layout, goal, pos[k], dirs.ravel()[k]))
     # A hand-checked case: open 3x4 grid, agent at (2, 1) facing north, goal at (0, 3).
     open_env = ma.make_env(jnp.zeros((3, 4), jnp.int32), jnp.array([0, 3]))
     view = np.asarray(ma.observe(open_env, ma.AgentState(jnp.array([2, 1]), jnp.array(ma.NORTH))))
-    np.testing.assert_array_equal(view, [[1, 1, 1, 1, 1], [1, 1, 1, 1, 1], [1, 0, 0, 0, 2],
-                                         [1, 0, 0, 0, 0], [1, 0, 0, 0, 0]])
+    np.testing.assert_array_equal(
+        view, [[1, 1, 1, 1, 1], [1, 1, 1, 1, 1], [1, 0, 0, 0, 2], [1, 0, 0, 0, 0], [1, 0, 0, 0, 0]]
+    )
 
 
 def test_turns_cycle_and_forward_in_every_direction_stops_at_grid_edge():
@@ -90,8 +115,16 @@ def test_turns_cycle_and_forward_in_every_direction_stops_at_grid_edge():
             for _ in range(4):
                 rights = ma.step(env, rights, ma.RIGHT)
                 lefts = ma.step(env, lefts, ma.LEFT)
-            out.append((one.pos, two.pos, rights.dir, lefts.dir,
-                        ma.step(env, s, ma.RIGHT).dir, ma.step(env, s, ma.LEFT).dir))
+            out.append(
+                (
+                    one.pos,
+                    two.pos,
+                    rights.dir,
+                    lefts.dir,
+                    ma.step(env, s, ma.RIGHT).dir,
+                    ma.step(env, s, ma.LEFT).dir,
+                )
+            )
         return out
 
     for d, (one, two, r4, l4, r1, l1) in enumerate(jax.device_get(run(layout))):
@@ -113,8 +146,7 @@ def level(rows):
 def trainer():
     """ACCEL on a trivial maze: open 2x2 rooms (bordered 4x4), random NCA levels of that size and
     their small edits."""
-    tr = Trainer(NET, tiny_cfg(levels={"method": "accel", "nca_prob": 0.3}),
-                 compiler_options=FAST_COMPILE)
+    tr = Trainer(NET, tiny_cfg(levels={"method": "accel", "nca_prob": 0.3}), compiler_options=FAST_COMPILE)
     return tr, tr.init(jax.random.PRNGKey(3))
 
 
@@ -192,18 +224,21 @@ def test_min_interior_levels_are_smaller_mazes_inside_the_fixed_array():
     from nca_qd.agent.levels import buffer_init, choose_levels
 
     cfg = OmegaConf.create({"method": "dr", "density": [0.0, 0.0], "tries": 1, "min_interior": 3})
-    levels, _, _ = choose_levels(jax.random.PRNGKey(3), buffer_init(4, (10, 10)), jnp.int32(0), 64,
-                                 (8, 8), cfg)
+    levels, _, _ = choose_levels(
+        jax.random.PRNGKey(3), buffer_init(4, (10, 10)), jnp.int32(0), 64, (8, 8), cfg
+    )
     lay = np.asarray(levels.layout)
     free = lay == 0
     rows, cols = free.any(2).sum(1), free.any(1).sum(1)  # the open region's height and width
     assert rows.min() >= 3 and cols.min() >= 3 and rows.max() == 8 and len(set(rows)) > 2
     for i in range(len(lay)):  # an open rectangle in the top-left corner, walls elsewhere
-        np.testing.assert_array_equal(free[i, 1:rows[i] + 1, 1:cols[i] + 1], True)
+        np.testing.assert_array_equal(free[i, 1 : rows[i] + 1, 1 : cols[i] + 1], True)
         assert free[i].sum() == rows[i] * cols[i]
         # start and goal: opposite corners of the open rectangle (its longest shortest path)
         assert {tuple(levels.start[i].tolist()), tuple(levels.goal[i].tolist())} == {
-            (1, 1), (int(rows[i]), int(cols[i]))}
+            (1, 1),
+            (int(rows[i]), int(cols[i])),
+        }
 
 
 # --------------------------------------------------------------------------- shipped agent
@@ -252,12 +287,19 @@ def run_main(module, argv, monkeypatch, capsys):
     return exc.value.code, out.out, out.err
 
 
-@pytest.mark.parametrize("argv", [["n_envs=0"], ["levels.method=bogus"], ["bogus_key=1"],
-                                  ["n_envs=6", "ppo.minibatches=4"],
-                                  ["heldout.interior=[1,5]"], ["levels.min_interior=0"]])
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["n_envs=0"],
+        ["levels.method=bogus"],
+        ["bogus_key=1"],
+        ["n_envs=6", "ppo.minibatches=4"],
+        ["heldout.interior=[1,5]"],
+        ["levels.min_interior=0"],
+    ],
+)
 def test_train_agent_bad_input_is_one_error_line(argv, monkeypatch, capsys, tmp_path):
-    code, out, err = run_main("experiments.train_agent", argv + [f"run_dir={tmp_path}"],
-                              monkeypatch, capsys)
+    code, out, err = run_main("experiments.train_agent", argv + [f"run_dir={tmp_path}"], monkeypatch, capsys)
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert code == 2 and len(lines) == 1 and lines[0].startswith("error: ")
 
@@ -268,8 +310,7 @@ def fake_maze_run(path):
     from nca_qd.io import save_npz
     from nca_qd.nca import NCAGenerator
 
-    cfg = compose_config("run", ["domain=maze", "domain.nca_iters.train=3",
-                                 "domain.nca_iters.eval=3"])
+    cfg = compose_config("run", ["domain=maze", "domain.nca_iters.train=3", "domain.nca_iters.eval=3"])
     path.mkdir()
     (path / "config.yaml").write_text(OmegaConf.to_yaml(cfg))
     d = NCAGenerator(n_tiles=2).n_params
@@ -283,22 +324,35 @@ def test_maze_transfer_end_to_end(tmp_path, monkeypatch, capsys):
     out = tmp_path / "out"
     # episodes=50 and horizon 648: the 18x18 rollouts reuse the shipped-agent test's compile
     # (66x66 capped at 648 steps to stay quick).
-    argv = [f"run_dir={run}", f"out={out}", "episodes=50", "max_horizon=648", "progress=false",
-            "pictures=false",
-            "baseline.n_mazes=1", "baseline.episodes=50", "baseline.batch=1",
-            "baseline.max_tries=2", "baseline.path_ratio=[0.0,100.0]"]
+    argv = [
+        f"run_dir={run}",
+        f"out={out}",
+        "episodes=50",
+        "max_horizon=648",
+        "progress=false",
+        "pictures=false",
+        "baseline.n_mazes=1",
+        "baseline.episodes=50",
+        "baseline.batch=1",
+        "baseline.max_tries=2",
+        "baseline.path_ratio=[0.0,100.0]",
+    ]
     code, stdout, err = run_main("experiments.maze_transfer", argv, monkeypatch, capsys)
     assert code == 0, err
     results = [json.loads(line) for line in stdout.splitlines() if line.startswith("{")]
-    assert [r["case"] for r in results] == ["paper_nca_18x18", "paper_nca_66x66", "own_nca_18x18",
-                                            "own_nca_66x66", "baseline_66x66"]
+    assert [r["case"] for r in results] == [
+        "paper_nca_18x18",
+        "paper_nca_66x66",
+        "own_nca_18x18",
+        "own_nca_66x66",
+        "baseline_66x66",
+    ]
     for r in results:
         assert {"case", "episodes", "success_rate", "stderr"} <= set(r)
         assert 0 <= r["success_rate"] <= 1 and r["stderr"] >= 0
     assert results[-1]["mazes"] == 1 and results[-1]["episodes"] == 50
     assert (out / "results.jsonl").read_text().count("\n") == 5
-    code, _, err = run_main("experiments.maze_transfer", ["agent=bogus", f"out={out}"],
-                            monkeypatch, capsys)
+    code, _, err = run_main("experiments.maze_transfer", ["agent=bogus", f"out={out}"], monkeypatch, capsys)
     assert code == 2 and err.startswith("error: ") and len(err.strip().splitlines()) == 1
 
 
@@ -325,11 +379,17 @@ def test_own_nca_elite_is_the_best_objective_maze_with_the_longest_path(monkeypa
     class Domain:
         assemble = staticmethod(lambda r: np.pad(r, ((0, 0), (1, 1), (1, 1)), constant_values=1))
 
-    archive = {"objective": np.array([1.0, 1.0, 1.0, np.nan, 0.0]),
-               "genotypes": np.array([[0], [1], [2], [0], [2]])}
+    archive = {
+        "objective": np.array([1.0, 1.0, 1.0, np.nan, 0.0]),
+        "genotypes": np.array([[0], [1], [2], [0], [2]]),
+    }
     assert longest_path_elite(Domain(), None, archive) == 2
     assert longest_path_elite(Domain(), None, archive, chunk=2) == 2  # across chunks
     archive["objective"][2] = 0.0  # the snake no longer among the best: the room's path (10) wins
     assert longest_path_elite(Domain(), None, archive) == 0
-    assert longest_path_elite(Domain(), None, {"objective": np.full(3, np.nan),
-                                               "genotypes": np.zeros((3, 1), int)}) is None
+    assert (
+        longest_path_elite(
+            Domain(), None, {"objective": np.full(3, np.nan), "genotypes": np.zeros((3, 1), int)}
+        )
+        is None
+    )

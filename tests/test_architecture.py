@@ -24,8 +24,7 @@ FORBIDDEN = {
     "repair": {"domains", "scoring", "qd", "sim", "agent", "pipeline", "experiment", "evaluation"},
     "scoring": {"domains", "qd", "agent", "pipeline", "experiment", "evaluation"},
     "domains": {"agent", "qd", "pipeline", "experiment", "evaluation"},
-    "layouts": {"domains", "scoring", "qd", "sim", "repair", "agent", "pipeline", "experiment",
-                "evaluation"},
+    "layouts": {"domains", "scoring", "qd", "sim", "repair", "agent", "pipeline", "experiment", "evaluation"},
     "nca": {"domains", "scoring", "qd", "sim", "repair", "agent"},
     "measures": {"domains", "scoring", "qd", "sim", "repair", "agent"},
 }
@@ -66,7 +65,7 @@ def test_the_package_graph_has_no_cycle():
         state[unit] = 1
         for nxt in graph.get(unit, {}):
             if state.get(nxt) == 1:
-                cycle = stack[stack.index(nxt):] + [unit, nxt] if nxt in stack else [unit, nxt]
+                cycle = stack[stack.index(nxt) :] + [unit, nxt] if nxt in stack else [unit, nxt]
                 where = graph[unit][nxt][0]
                 pytest.fail(f"import cycle {' -> '.join(cycle)} (e.g. {where})")
             if nxt not in state:
@@ -82,10 +81,14 @@ def test_the_package_graph_has_no_cycle():
 def test_a_generic_layer_does_not_import_the_layers_above_it(unit):
     graph = import_graph()
     banned = FORBIDDEN[unit]
-    bad = {there: where for there, where in graph.get(unit, {}).items()
-           if there in banned or ("*" in banned and there != unit)}
+    bad = {
+        there: where
+        for there, where in graph.get(unit, {}).items()
+        if there in banned or ("*" in banned and there != unit)
+    }
     assert not bad, f"nca_qd.{unit} imports " + "; ".join(
-        f"nca_qd.{t} ({', '.join(w[:3])})" for t, w in sorted(bad.items()))
+        f"nca_qd.{t} ({', '.join(w[:3])})" for t, w in sorted(bad.items())
+    )
 
 
 def test_no_module_outside_a_layout_family_branches_on_its_name():
@@ -100,11 +103,17 @@ def test_no_module_outside_a_layout_family_branches_on_its_name():
             continue
         for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, ast.Compare) and any(
-                    isinstance(c, ast.Constant) and c.value in families for c in node.comparators):
+                isinstance(c, ast.Constant) and c.value in families for c in node.comparators
+            ):
                 found.append(f"{path.relative_to(PACKAGE.parent)}:{node.lineno}")
-            if (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
-                    and node.func.attr == "startswith" and node.args
-                    and isinstance(node.args[0], ast.Constant) and node.args[0].value in families):
+            if (
+                isinstance(node, ast.Call)
+                and isinstance(node.func, ast.Attribute)
+                and node.func.attr == "startswith"
+                and node.args
+                and isinstance(node.args[0], ast.Constant)
+                and node.args[0].value in families
+            ):
                 found.append(f"{path.relative_to(PACKAGE.parent)}:{node.lineno}")
     assert not found, "branches on a layout family's name: " + ", ".join(found)
 

@@ -3,7 +3,8 @@
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from nca_qd.qd.archive import ThresholdRepertoire, archive_stats, grid_cell_indices
 
@@ -53,8 +54,9 @@ def test_matches_pyribs_grid_archive_on_identical_batches(seed, lr, tmin):
     if tmin == -np.inf and lr != 1.0:
         lr = 1.0  # pyribs requires learning_rate=1 without threshold_min
     rng = np.random.default_rng(seed)
-    ref = ribs_archives.GridArchive(solution_dim=2, dims=list(CELLS), ranges=list(RANGES),
-                                    learning_rate=lr, threshold_min=tmin)
+    ref = ribs_archives.GridArchive(
+        solution_dim=2, dims=list(CELLS), ranges=list(RANGES), learning_rate=lr, threshold_min=tmin
+    )
     ours = _archive(lr=lr, tmin=tmin)
     for _ in range(4):
         b = 12
@@ -74,5 +76,6 @@ def test_matches_pyribs_grid_archive_on_identical_batches(seed, lr, tmin):
     np.testing.assert_allclose(np.asarray(ours.fitnesses[idx, 0]), data["objective"][order], rtol=1e-6)
     np.testing.assert_allclose(np.asarray(ours.genotypes[idx]), data["solution"][order], rtol=1e-6)
     if tmin != -np.inf:
-        np.testing.assert_allclose(np.asarray(ours.thresholds[idx]), data["threshold"][order],
-                                   rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(
+            np.asarray(ours.thresholds[idx]), data["threshold"][order], rtol=1e-5, atol=1e-6
+        )

@@ -7,8 +7,14 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from nca_qd.sim.checker import (CheckError, check_goals, check_moves, check_run, recount_tasks,
-                                traversable_mask)
+from nca_qd.sim.checker import (
+    CheckError,
+    check_goals,
+    check_moves,
+    check_run,
+    recount_tasks,
+    traversable_mask,
+)
 
 ROWS = [
     "w...e",
@@ -24,19 +30,21 @@ def paths_of(*tracks):
 
 
 def test_legal_moves_pass():
-    check_moves(paths_of([(0, 0), (0, 1), (0, 2), (0, 2)],
-                         [(2, 0), (2, 0), (2, 1), (2, 2)]), MASK)
+    check_moves(paths_of([(0, 0), (0, 1), (0, 2), (0, 2)], [(2, 0), (2, 0), (2, 1), (2, 2)]), MASK)
 
 
-@pytest.mark.parametrize("tracks, message", [
-    (([(0, 0), (0, 1)], [(0, 2), (0, 1)]), "vertex conflict"),
-    (([(0, 0), (0, 1)], [(0, 1), (0, 0)]), "swap conflict"),
-    (([(0, 0), (0, 2)], [(2, 0), (2, 0)]), "jumps"),
-    (([(0, 2), (1, 3)], [(2, 0), (2, 0)]), "jumps"),          # diagonal
-    (([(0, 3), (1, 3), (1, 2)], [(2, 0), (2, 0), (2, 0)]), "non-traversable"),
-    (([(0, 4), (0, 5)], [(2, 0), (2, 0)]), "off the map"),
-    (([(0, 0)], [(0, 0)]), "vertex conflict"),                # already at time 0
-])
+@pytest.mark.parametrize(
+    "tracks, message",
+    [
+        (([(0, 0), (0, 1)], [(0, 2), (0, 1)]), "vertex conflict"),
+        (([(0, 0), (0, 1)], [(0, 1), (0, 0)]), "swap conflict"),
+        (([(0, 0), (0, 2)], [(2, 0), (2, 0)]), "jumps"),
+        (([(0, 2), (1, 3)], [(2, 0), (2, 0)]), "jumps"),  # diagonal
+        (([(0, 3), (1, 3), (1, 2)], [(2, 0), (2, 0), (2, 0)]), "non-traversable"),
+        (([(0, 4), (0, 5)], [(2, 0), (2, 0)]), "off the map"),
+        (([(0, 0)], [(0, 0)]), "vertex conflict"),  # already at time 0
+    ],
+)
 def test_violations_are_caught(tracks, message):
     with pytest.raises(CheckError, match=message):
         check_moves(paths_of(*tracks), MASK)
@@ -74,8 +82,15 @@ def test_goal_rules():
 def test_check_run_compares_counts():
     paths = paths_of([(0, 3), (0, 4), (1, 4), (2, 4)], [(2, 1), (2, 0), (2, 0), (2, 1)])
     goals = [np.array([[0, 4, 0], [0, 0, 0]]), np.array([[2, 0, 0], [2, 4, 0]])]
-    res = SimpleNamespace(paths=paths, goals=goals, tasks_per_step=np.array([2, 0, 0, 0]),
-                          stop_time=3, T=4, throughput=0.5, scenario="warehouse_even")
+    res = SimpleNamespace(
+        paths=paths,
+        goals=goals,
+        tasks_per_step=np.array([2, 0, 0, 0]),
+        stop_time=3,
+        T=4,
+        throughput=0.5,
+        scenario="warehouse_even",
+    )
     report = check_run(res, ROWS)
     assert report.finished_tasks == 2 and report.n_steps == 3
     res.tasks_per_step = np.array([1, 1, 0, 0])

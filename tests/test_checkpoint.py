@@ -7,8 +7,8 @@ from pathlib import Path
 import jax
 import numpy as np
 import pytest
-
 from conftest import TINY_MAZE
+
 from experiments.cli import compose_config
 from nca_qd.errors import NcaQdError
 from nca_qd.experiment import Experiment
@@ -51,17 +51,20 @@ def test_compact_policy_keeps_archives_exact_and_emitters_close(cma_mae_sphere, 
     leaves out ~0.035) every covariance is stored in full."""
     loop, state = cma_mae_sphere
     path = tmp_path / "c.npz"
-    meta = ck.save_checkpoint(path, state, loop.emitter,
-                              ck.CheckpointPolicy(covariance_rank=4, covariance_tolerance=tolerance))
+    meta = ck.save_checkpoint(
+        path, state, loop.emitter, ck.CheckpointPolicy(covariance_rank=4, covariance_tolerance=tolerance)
+    )
     assert meta["encoding"]["covariance_full"] == [tolerance < 1.0] * 3, meta["encoding"]
     back, _ = ck.load_checkpoint(path, loop.init(jax.random.PRNGKey(9)), loop.emitter)
     res, opt = state.res_archive, state.opt_archive
     for name in ("fitnesses", "descriptors", "thresholds", "genotypes"):
-        np.testing.assert_array_equal(np.asarray(getattr(back.res_archive, name)),
-                                      np.asarray(getattr(res, name)), err_msg=name)
+        np.testing.assert_array_equal(
+            np.asarray(getattr(back.res_archive, name)), np.asarray(getattr(res, name)), err_msg=name
+        )
     for name in ("fitnesses", "descriptors", "thresholds"):
-        np.testing.assert_array_equal(np.asarray(getattr(back.opt_archive, name)),
-                                      np.asarray(getattr(opt, name)), err_msg=name)
+        np.testing.assert_array_equal(
+            np.asarray(getattr(back.opt_archive, name)), np.asarray(getattr(opt, name)), err_msg=name
+        )
     # Restart points (int8 per row): error at most 1/510 of the row's range.
     g, h = np.asarray(opt.genotypes), np.asarray(back.opt_archive.genotypes)
     span = g.max(axis=1) - g.min(axis=1)
@@ -75,6 +78,7 @@ def test_compact_policy_keeps_archives_exact_and_emitters_close(cma_mae_sphere, 
     for e, left in enumerate(meta["encoding"]["covariance_left_out"]):
         err = np.linalg.norm(C[e] - C2[e]) / np.mean(np.diag(C[e]))
         assert err <= left + 1e-5, (e, err, left)
+
     # B and D are restored from the matrix the emitters sampled with (the covariance at the
     # last lazy eigendecomposition): B2 D2^2 B2^T matches B D^2 B^T within what was left out.
     def sampling(e):
@@ -97,7 +101,7 @@ def test_a_fresh_emitter_state_is_restored_exactly(tmp_path):
         np.testing.assert_array_equal(a, b)
 
 
-@pytest.mark.parametrize("dtype,bound", [("float32", 0.0), ("float16", 2 ** -11), ("int8", None)])
+@pytest.mark.parametrize("dtype,bound", [("float32", 0.0), ("float16", 2**-11), ("int8", None)])
 def test_restart_points_round_trip_within_their_precision(dtype, bound):
     rng = np.random.default_rng(0)
     rows = rng.normal(0, 0.7, (50, 300)).astype(np.float32)
@@ -239,7 +243,9 @@ def test_a_snapshot_keeps_the_best_result_elites_exact_and_the_rest_close(cma_ma
     best = occ[np.argsort(-f[occ], kind="stable")[:3]]
     g, h = np.asarray(state.res_archive.genotypes), np.asarray(back.res_archive.genotypes)
     np.testing.assert_array_equal(h[best], g[best])
-    np.testing.assert_array_equal(np.asarray(back.res_archive.fitnesses), np.asarray(state.res_archive.fitnesses))
+    np.testing.assert_array_equal(
+        np.asarray(back.res_archive.fitnesses), np.asarray(state.res_archive.fitnesses)
+    )
     rest = np.setdiff1d(occ, best)
     assert rest.size and not np.array_equal(h[rest], g[rest])
     span = g[rest].max(axis=1) - g[rest].min(axis=1)

@@ -1,14 +1,12 @@
 """Warehouse and manufacturing domains: seeds, frame, measures, registry."""
 
-
 import numpy as np
 import pytest
 
-from nca_qd.domains import make_domain
-from nca_qd.io import load_map
-from nca_qd.layouts import warehouse as wh
-from nca_qd.io import reference_maps_dir
 from experiments.cli import compose_config
+from nca_qd.domains import make_domain
+from nca_qd.io import load_map, reference_maps_dir
+from nca_qd.layouts import warehouse as wh
 
 MAPS = reference_maps_dir()
 

@@ -22,18 +22,45 @@ from nca_qd.errors import NcaQdError
 from nca_qd.io import atomic_write_text, load_map, save_npz
 
 # Storage 9x10 (9x14 with the workstation columns) at S, 13x14 (13x18) at S_eval.
-TINY_RUN = ["domain=warehouse_even", "domain.size.train=[9,10]", "domain.size.eval=[13,14]",
-            "domain.repair.n_shelves.train=12", "domain.repair.n_shelves.eval=24",
-            "domain.n_agents.train=8", "domain.n_agents.eval=12"]
+TINY_RUN = [
+    "domain=warehouse_even",
+    "domain.size.train=[9,10]",
+    "domain.size.eval=[13,14]",
+    "domain.repair.n_shelves.train=12",
+    "domain.repair.n_shelves.eval=24",
+    "domain.n_agents.train=8",
+    "domain.n_agents.eval=12",
+]
 # A valid 9x14 human-designed warehouse (7 shelves), found through $NCA_QD_MAPS.
-HUMAN_9x14 = ["..............", "w...e@@e.....w", "..............", "..e@e..e@e....",
-              "w............w", "....e@@e......", "..............", "w....e@e.....w",
-              ".............."]
-FAST = ["T=40", "runs.train=3", "runs.eval=2", "exact.train=2", "exact.eval=1",
-        "exact.time_limit_s=60", "sweep.train.agents=[4,8]", "sweep.train.runs=2",
-        "sweep.eval.agents=[]", "sizes.shapes=[[11,15]]", "sizes.n_shelves={11x15: 14}",
-        "sizes.agents={9x14: [8], 13x18: [12], 11x15: [8]}", "sizes.runs=2",
-        "eval.workers=0", "progress=false", "tasks_smooth=5"]
+HUMAN_9x14 = [
+    "..............",
+    "w...e@@e.....w",
+    "..............",
+    "..e@e..e@e....",
+    "w............w",
+    "....e@@e......",
+    "..............",
+    "w....e@e.....w",
+    "..............",
+]
+FAST = [
+    "T=40",
+    "runs.train=3",
+    "runs.eval=2",
+    "exact.train=2",
+    "exact.eval=1",
+    "exact.time_limit_s=60",
+    "sweep.train.agents=[4,8]",
+    "sweep.train.runs=2",
+    "sweep.eval.agents=[]",
+    "sizes.shapes=[[11,15]]",
+    "sizes.n_shelves={11x15: 14}",
+    "sizes.agents={9x14: [8], 13x18: [12], 11x15: [8]}",
+    "sizes.runs=2",
+    "eval.workers=0",
+    "progress=false",
+    "tasks_smooth=5",
+]
 
 
 def make_run(run_dir: Path, overrides=TINY_RUN, elites=(3, 7), empty=False) -> Path:
@@ -42,8 +69,7 @@ def make_run(run_dir: Path, overrides=TINY_RUN, elites=(3, 7), empty=False) -> P
     from nca_qd.pipeline import make_generator
 
     cfg = compose_config("run", list(overrides))
-    n_params = make_generator(make_domain(cfg.domain)).n_params if cfg.domain.name != "maze" \
-        else 10
+    n_params = make_generator(make_domain(cfg.domain)).n_params if cfg.domain.name != "maze" else 10
     cells = 12
     rng = np.random.default_rng(0)
     genotypes = np.zeros((cells, n_params), np.float32)
@@ -54,9 +80,15 @@ def make_run(run_dir: Path, overrides=TINY_RUN, elites=(3, 7), empty=False) -> P
             objective[c] = 5.0 - rank
     run_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_text(run_dir / "config.yaml", OmegaConf.to_yaml(cfg))
-    save_npz(run_dir / "archive_result.npz", {
-        "genotypes": genotypes, "objective": objective,
-        "measures": np.zeros((cells, 2), np.float32), "centroids": np.zeros((cells, 2), np.float32)})
+    save_npz(
+        run_dir / "archive_result.npz",
+        {
+            "genotypes": genotypes,
+            "objective": objective,
+            "measures": np.zeros((cells, 2), np.float32),
+            "centroids": np.zeros((cells, 2), np.float32),
+        },
+    )
     return run_dir
 
 
@@ -64,8 +96,9 @@ def make_run(run_dir: Path, overrides=TINY_RUN, elites=(3, 7), empty=False) -> P
 def maps(tmp_path_factory):
     root = tmp_path_factory.mktemp("maps")
     (root / "warehouse").mkdir()
-    (root / "warehouse" / "human_9x14.json").write_text(json.dumps(
-        {"name": "human_9x14", "layout": HUMAN_9x14, "n_row": 9, "n_col": 14}))
+    (root / "warehouse" / "human_9x14.json").write_text(
+        json.dumps({"name": "human_9x14", "layout": HUMAN_9x14, "n_row": 9, "n_col": 14})
+    )
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("NCA_QD_MAPS", str(root))
         yield root
@@ -90,20 +123,35 @@ def read(path: Path) -> list[dict[str, str]]:
 
 def test_every_output_is_written(evaluated):
     out, printed = evaluated
-    for stem in ("summary", "throughput_vs_agents_train", "tasks_over_time_train",
-                 "tasks_over_time_eval", "tile_usage_train", "tile_usage_eval", "scaling_sizes"):
+    for stem in (
+        "summary",
+        "throughput_vs_agents_train",
+        "tasks_over_time_train",
+        "tasks_over_time_eval",
+        "tile_usage_train",
+        "tile_usage_eval",
+        "scaling_sizes",
+    ):
         if stem != "summary":
             assert (out / f"{stem}.png").stat().st_size > 1000, stem
         assert read(out / f"{stem}.csv"), stem
-    for name in ("summary.md", "runs.csv", "layouts.csv", "scaling_sizes_grid.csv",
-                 "evaluate_config.yaml", "layouts_9x14.png", "layouts_13x18.png"):
+    for name in (
+        "summary.md",
+        "runs.csv",
+        "layouts.csv",
+        "scaling_sizes_grid.csv",
+        "evaluate_config.yaml",
+        "layouts_9x14.png",
+        "layouts_13x18.png",
+    ):
         assert (out / name).is_file(), name
     assert not (out / "throughput_vs_agents_eval.csv").exists()  # sweep.eval.agents=[]
     # the printed table is summary.md, one row per (layout, size, simulator)
     md = (out / "summary.md").read_text()
     assert md.strip() in printed
-    assert len([l for l in md.splitlines() if l.startswith("| ") and "N_a" not in l]) == \
-        len(read(out / "summary.csv"))
+    assert len([l for l in md.splitlines() if l.startswith("| ") and "N_a" not in l]) == len(
+        read(out / "summary.csv")
+    )
 
 
 def test_summary_has_every_layout_and_simulator_with_sane_statistics(evaluated):
@@ -112,10 +160,16 @@ def test_summary_has_every_layout_and_simulator_with_sane_statistics(evaluated):
     got = {(r["size"], r["kind"], r["simulator"], r["runs"]) for r in rows}
     # S: the best generator (elites=1 -> cell 3) and the human map; S_eval: NCA and tiling
     # (no human 13x18 map exists): RHCR for exact.* runs, the screen for runs.*
-    assert got == {("9x14", "nca", "rhcr", "2"), ("9x14", "nca", "screen", "3"),
-                   ("9x14", "human", "rhcr", "2"), ("9x14", "human", "screen", "3"),
-                   ("13x18", "nca", "rhcr", "1"), ("13x18", "nca", "screen", "2"),
-                   ("13x18", "tiling", "rhcr", "1"), ("13x18", "tiling", "screen", "2")}
+    assert got == {
+        ("9x14", "nca", "rhcr", "2"),
+        ("9x14", "nca", "screen", "3"),
+        ("9x14", "human", "rhcr", "2"),
+        ("9x14", "human", "screen", "3"),
+        ("13x18", "nca", "rhcr", "1"),
+        ("13x18", "nca", "screen", "2"),
+        ("13x18", "tiling", "rhcr", "1"),
+        ("13x18", "tiling", "screen", "2"),
+    }
     for r in rows:
         assert r["n_agents"] == ("8" if r["which"] == "train" else "12")
         assert 0.0 <= float(r["success_rate"]) <= 1.0
@@ -139,8 +193,14 @@ def test_statistics_match_the_raw_runs(evaluated):
     runs = read(out / "runs.csv")
     assert {r["simulator"] for r in runs} == {"rhcr", "screen"}
     for row in read(out / "summary.csv"):
-        mine = [r for r in runs if r["layout"] == row["layout"] and r["size"] == row["size"]
-                and r["simulator"] == row["simulator"] and r["n_agents"] == row["n_agents"]]
+        mine = [
+            r
+            for r in runs
+            if r["layout"] == row["layout"]
+            and r["size"] == row["size"]
+            and r["simulator"] == row["simulator"]
+            and r["n_agents"] == row["n_agents"]
+        ]
         mine = sorted(mine, key=lambda r: int(r["seed"]))[: int(row["runs"])]
         assert [int(r["seed"]) for r in mine] == list(range(int(row["runs"])))
         thr = [float(r["throughput"]) for r in mine]
@@ -156,7 +216,8 @@ def test_curves_heatmaps_and_tasks(evaluated):
     out, _ = evaluated
     curve = read(out / "throughput_vs_agents_train.csv")
     assert {(r["layout"], r["n_agents"], r["simulator"]) for r in curve} == {
-        (lab, n, "screen") for lab in ("NCA (cell 3)", "human") for n in ("4", "8")}
+        (lab, n, "screen") for lab in ("NCA (cell 3)", "human") for n in ("4", "8")
+    }
     assert all(r["runs"] == "2" for r in curve)
     heat = read(out / "tile_usage_train.csv")
     nca = [r for r in heat if r["kind"] == "nca"]
@@ -164,34 +225,45 @@ def test_curves_heatmaps_and_tasks(evaluated):
     assert all(float(r["visits_mean"]) == 0 for r in nca if r["tile"] == "@")
     # every agent is on some tile at every step until the run stops: visits add up to
     # N_a * stop_time, averaged over the RHCR runs of the main comparison
-    stops = [int(r["stop_time"]) for r in read(out / "runs.csv") if r["kind"] == "nca"
-             and r["size"] == "9x14" and r["simulator"] == "rhcr" and r["n_agents"] == "8"]
+    stops = [
+        int(r["stop_time"])
+        for r in read(out / "runs.csv")
+        if r["kind"] == "nca" and r["size"] == "9x14" and r["simulator"] == "rhcr" and r["n_agents"] == "8"
+    ]
     assert len(stops) == 2
     total = sum(float(r["visits_mean"]) for r in nca)
     assert total == pytest.approx(8 * np.mean(stops))
     tasks = read(out / "tasks_over_time_train.csv")
-    for (lab, sim) in {(r["layout"], r["simulator"]) for r in tasks}:
+    for lab, sim in {(r["layout"], r["simulator"]) for r in tasks}:
         ts = [r for r in tasks if r["layout"] == lab and r["simulator"] == sim]
         assert [int(r["t"]) for r in ts] == list(range(1, 41))
     sizes = read(out / "scaling_sizes.csv")
     assert {(r["layout"], r["size"]) for r in sizes} == {
-        ("NCA (cell 3)", "9x14"), ("NCA (cell 3)", "11x15"), ("NCA (cell 3)", "13x18"),
-        ("human", "9x14")}
+        ("NCA (cell 3)", "9x14"),
+        ("NCA (cell 3)", "11x15"),
+        ("NCA (cell 3)", "13x18"),
+        ("human", "9x14"),
+    }
     assert all(r["simulator"] == "screen" for r in sizes)  # exact.sizes=0
     assert {r["agents_at_max"] for r in sizes if r["size"] == "11x15"} == {"8"}
 
 
 def test_layouts_are_saved_and_tiling_is_repaired(evaluated):
-    from nca_qd.repair import make_rules
     from nca_qd.layouts import warehouse as wh
+    from nca_qd.repair import make_rules
     from nca_qd.repair.validator import check
 
     out, _ = evaluated
     lays = {r["layout"] + "@" + r["size"]: r for r in read(out / "layouts.csv")}
     assert lays["NCA (cell 3)@11x15"]["nca_iters"] == str(
-        ev.interpolate_iters((11, 15), (9, 14), (13, 18), 50, 200))
-    for key, n_s in (("NCA (cell 3)@9x14", 12), ("NCA (cell 3)@13x18", 24),
-                     ("tiling (cell 3)@13x18", 24), ("NCA (cell 3)@11x15", 14)):
+        ev.interpolate_iters((11, 15), (9, 14), (13, 18), 50, 200)
+    )
+    for key, n_s in (
+        ("NCA (cell 3)@9x14", 12),
+        ("NCA (cell 3)@13x18", 24),
+        ("tiling (cell 3)@13x18", 24),
+        ("NCA (cell 3)@11x15", 14),
+    ):
         lay = load_map(out / lays[key]["file"], wh.TILES).to_array(wh.TILES)
         assert check(lay, make_rules("warehouse_even", lay.shape, n_shelves=n_s)) is None, key
 
@@ -222,8 +294,9 @@ def test_statistics_leave_out_timed_out_runs(maps):
 
 
 def test_agent_counts():
-    assert ev.agent_range({"agents": None, "start": None, "stop": None, "step": None}, 1400, 25,
-                          "sweep.eval") == list(range(700, 1751, 25))
+    assert ev.agent_range(
+        {"agents": None, "start": None, "stop": None, "step": None}, 1400, 25, "sweep.eval"
+    ) == list(range(700, 1751, 25))
     assert ev.agent_range({"agents": [5, 3]}, 10, 1, "x") == [5, 3]
     assert ev.scaled_agents((101, 102), 1400, (101, 102), [0.5, 1.0], 10) == [700, 1400]
     assert ev.scaled_agents((45, 47), 1400, (101, 102), [1.0], 10) == [290]
@@ -256,31 +329,45 @@ def test_select_by_s_eval_picks_the_best_screened_generator(tmp_path, maps, monk
     monkeypatch.setattr(ev, "repair_all", counting_repair_all)
     run_dir = make_run(tmp_path / "run")
     out = tmp_path / "evaluation"
-    code = evaluate_cli.main([
-        f"run_dir={run_dir}", f"out={out}", "T=20", "runs.train=1", "runs.eval=1",
-        "exact.train=0", "exact.eval=0", "sweep.train.agents=[]", "sweep.eval.agents=[]",
-        "sizes.shapes=[]", "sizes.include_main=false", "baselines.tiling=false",
-        "baselines.human=false", "eval.workers=0", "progress=false", "select.by=s_eval",
-        "select.pool=2", "select.runs=2", "select.T=60"])
+    code = evaluate_cli.main(
+        [
+            f"run_dir={run_dir}",
+            f"out={out}",
+            "T=20",
+            "runs.train=1",
+            "runs.eval=1",
+            "exact.train=0",
+            "exact.eval=0",
+            "sweep.train.agents=[]",
+            "sweep.eval.agents=[]",
+            "sizes.shapes=[]",
+            "sizes.include_main=false",
+            "baselines.tiling=false",
+            "baselines.human=false",
+            "eval.workers=0",
+            "progress=false",
+            "select.by=s_eval",
+            "select.pool=2",
+            "select.runs=2",
+            "select.T=60",
+        ]
+    )
     assert code == 0
     sel = read(out / "selection.csv")
     assert sorted(int(r["cell"]) for r in sel) == [3, 7]
     scored = [r for r in sel if r["screen_runs"] == "2"]
     assert scored, sel
-    best = max(scored, key=lambda r: (float(r["screen_throughput_mean"]),
-                                      float(r["objective_s"])))
+    best = max(scored, key=lambda r: (float(r["screen_throughput_mean"]), float(r["objective_s"])))
     assert [r["cell"] for r in sel if r["selected"] == "true"] == [best["cell"]]
     cells = {r["cell"] for r in read(out / "summary.csv") if r["kind"] == "nca"}
     assert cells == {best["cell"]}
-    assert all((out / r["file"]).is_file() for r in sel)   # every candidate's layout
+    assert all((out / r["file"]).is_file() for r in sel)  # every candidate's layout
     rows = load_map(out / best["file"]).rows
     # one repair per layout: the pool at S_eval (selection), then the chosen one's S layout only
-    assert sorted(repaired) == sorted(["nca_c3@13x18", "nca_c7@13x18",
-                                       f"nca_c{best['cell']}@9x14"])
+    assert sorted(repaired) == sorted(["nca_c3@13x18", "nca_c7@13x18", f"nca_c{best['cell']}@9x14"])
     assert load_map(out / "layouts" / f"nca_c{best['cell']}_13x18.json").rows == rows
     again = simulate_batch([rows], "warehouse_even", 12, 60, [0, 1])[0]
-    assert np.mean([r.throughput for r in again]) == pytest.approx(
-        float(best["screen_throughput_mean"]))
+    assert np.mean([r.throughput for r in again]) == pytest.approx(float(best["screen_throughput_mean"]))
 
 
 # ------------------------------------------------------------------------------ bad input
@@ -296,21 +383,24 @@ def tiny_run(tmp_path_factory):
     return make_run(tmp_path_factory.mktemp("bad") / "run")
 
 
-@pytest.mark.parametrize("case, expect", [
-    ("missing", "does not exist"),
-    ("not_a_run", "not a run directory"),
-    ("maze", "maze run: experiments.evaluate supports only"),
-    ("mismatch", "domain=manufacturing given, but"),
-    ("empty", "the result archive is empty"),
-    ("no_run_dir", "give run_dir"),
-    ("exact_over_runs", "exact.train (9) exceeds runs.train (3)"),
-    ("dask", "Dask scheduler"),
-    ("stray_size", "sizes.agents names 50x50, not a size of the curve"),
-    ("not_a_map", "sizes.n_shelves must map sizes to values"),
-    ("select_by", "select.by must be s or s_eval, got 'best'"),
-    ("select_pool", "elites (3) exceeds select.pool (2)"),
-    ("select_list", "elites must be a count"),
-])
+@pytest.mark.parametrize(
+    "case, expect",
+    [
+        ("missing", "does not exist"),
+        ("not_a_run", "not a run directory"),
+        ("maze", "maze run: experiments.evaluate supports only"),
+        ("mismatch", "domain=manufacturing given, but"),
+        ("empty", "the result archive is empty"),
+        ("no_run_dir", "give run_dir"),
+        ("exact_over_runs", "exact.train (9) exceeds runs.train (3)"),
+        ("dask", "Dask scheduler"),
+        ("stray_size", "sizes.agents names 50x50, not a size of the curve"),
+        ("not_a_map", "sizes.n_shelves must map sizes to values"),
+        ("select_by", "select.by must be s or s_eval, got 'best'"),
+        ("select_pool", "elites (3) exceeds select.pool (2)"),
+        ("select_list", "elites must be a count"),
+    ],
+)
 def test_bad_input_is_one_line_and_exit_2(case, expect, tmp_path, tiny_run, monkeypatch, capsys):
     argv = [f"run_dir={tiny_run}", f"out={tmp_path / 'o'}"]
     if case == "missing":
@@ -348,9 +438,20 @@ def test_bad_input_is_one_line_and_exit_2(case, expect, tmp_path, tiny_run, monk
 
 
 def test_too_many_agents_names_the_layout(tiny_run, tmp_path, maps, monkeypatch, capsys):
-    code = run_cli([f"run_dir={tiny_run}", f"out={tmp_path / 'o'}", "sweep.train.agents=[500]",
-                    "sweep.eval.agents=[]", "sizes.shapes=[]", "sizes.include_main=false",
-                    "baselines.tiling=false", "eval.workers=0", "progress=false"], monkeypatch)
+    code = run_cli(
+        [
+            f"run_dir={tiny_run}",
+            f"out={tmp_path / 'o'}",
+            "sweep.train.agents=[500]",
+            "sweep.eval.agents=[]",
+            "sizes.shapes=[]",
+            "sizes.include_main=false",
+            "baselines.tiling=false",
+            "eval.workers=0",
+            "progress=false",
+        ],
+        monkeypatch,
+    )
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and not any("Traceback" in l for l in err)
     assert err[-1].startswith("error: ") and "500 agents but only" in err[-1]
@@ -361,24 +462,45 @@ def test_too_many_agents_names_the_layout(tiny_run, tmp_path, maps, monkeypatch,
 def test_a_failed_repair_is_a_row_without_runs_and_old_outputs_go(tmp_path, maps):
     """N_s = 1000 cannot fit 13x18: the S_eval repair is infeasible; the summary says so and
     nothing is simulated there; a file of an earlier evaluation that is not rewritten goes."""
-    run_dir = make_run(tmp_path / "run", [o for o in TINY_RUN if "n_shelves.eval" not in o]
-                       + ["domain.repair.n_shelves.eval=1000"])
+    run_dir = make_run(
+        tmp_path / "run",
+        [o for o in TINY_RUN if "n_shelves.eval" not in o] + ["domain.repair.n_shelves.eval=1000"],
+    )
     out = tmp_path / "ev"
     out.mkdir()
     stale = out / "throughput_vs_agents_eval.png"
     stale.write_bytes(b"old")
     import os
+
     os.utime(stale, (1, 1))
     with contextlib.redirect_stdout(io.StringIO()):
-        assert evaluate_cli.main([
-            f"run_dir={run_dir}", f"out={out}", "T=20", "runs.train=2", "runs.eval=2",
-            "exact.train=0", "exact.eval=0", "sweep.train.agents=[]", "sweep.eval.agents=[]",
-            "sizes.shapes=[]", "sizes.include_main=false", "baselines.human=false",
-            "eval.workers=0", "progress=false"]) == 0
+        assert (
+            evaluate_cli.main(
+                [
+                    f"run_dir={run_dir}",
+                    f"out={out}",
+                    "T=20",
+                    "runs.train=2",
+                    "runs.eval=2",
+                    "exact.train=0",
+                    "exact.eval=0",
+                    "sweep.train.agents=[]",
+                    "sweep.eval.agents=[]",
+                    "sizes.shapes=[]",
+                    "sizes.include_main=false",
+                    "baselines.human=false",
+                    "eval.workers=0",
+                    "progress=false",
+                ]
+            )
+            == 0
+        )
     rows = read(out / "summary.csv")
     failed = [r for r in rows if r["which"] == "eval"]
     assert [(r["kind"], r["repair_status"], r["simulator"], r["runs"]) for r in failed] == [
-        ("nca", "infeasible", "", ""), ("tiling", "infeasible", "", "")]
+        ("nca", "infeasible", "", ""),
+        ("tiling", "infeasible", "", ""),
+    ]
     assert {r["simulator"] for r in rows if r["which"] == "train"} == {"screen"}
     assert not stale.exists()
     assert "infeasible" in (out / "summary.md").read_text()

@@ -12,12 +12,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from nca_qd.domains import make_domain
-from nca_qd.domains.maze import (MazeDomain, horizon_for, longest_shortest_path, run_agent,
-                                 solve_start_goal)
-from nca_qd.io import load_map
+from nca_qd.domains.maze import MazeDomain, horizon_for, longest_shortest_path, run_agent, solve_start_goal
+from nca_qd.io import load_map, reference_maps_dir
 from nca_qd.measures import entropy
 from nca_qd.sim import maze_agent as ma
-from nca_qd.io import reference_maps_dir
 
 MAPS = reference_maps_dir() / "maze"
 
@@ -109,8 +107,7 @@ _lsp = jax.jit(longest_shortest_path)
 
 
 @settings(max_examples=25, deadline=None)
-@given(shape=st.sampled_from([(5, 5), (6, 8)]), density=st.floats(0.0, 0.8),
-       seed=st.integers(0, 2**31 - 1))
+@given(shape=st.sampled_from([(5, 5), (6, 8)]), density=st.floats(0.0, 0.8), seed=st.integers(0, 2**31 - 1))
 def test_longest_shortest_path_matches_python_bfs(shape, density, seed):
     walls = np.random.default_rng(seed).random(shape) < density
     free = ~walls
@@ -184,8 +181,7 @@ def test_shortest_path_agent_reaches_goal_and_is_no_shorter_than_bfs():
         start, goal, length = solve_start_goal(layout)
         if length == 0:
             continue
-        res = run_agent(layout, start, goal, jax.random.PRNGKey(0), kind="shortest_path",
-                        record_path=True)
+        res = run_agent(layout, start, goal, jax.random.PRNGKey(0), kind="shortest_path", record_path=True)
         assert res.reached.all()
         # BFS distance plus turns: at most 2 turns before the first move, 1 before each other.
         assert (res.lengths >= length).all() and (res.lengths <= 2 * length + 1).all()
@@ -223,7 +219,7 @@ def test_wall_follower_counts_horizon_when_it_cannot_reach():
 @pytest.fixture(scope="module")
 def batch():
     rng = np.random.default_rng(7)
-    regions = (rng.random((6, 16, 16)) < np.array([0.0, 0.2, 0.35, 0.5, 0.9, 1.0])[:, None, None])
+    regions = rng.random((6, 16, 16)) < np.array([0.0, 0.2, 0.35, 0.5, 0.9, 1.0])[:, None, None]
     return regions.astype(np.int32)
 
 
@@ -265,12 +261,19 @@ def test_evaluator_is_deterministic_and_matches_run_agent(domain, batch, evaluat
     ev, out = evaluated
     again = ev(batch, jax.random.PRNGKey(42))
     np.testing.assert_array_equal(np.asarray(out.measures), np.asarray(again.measures))
-    np.testing.assert_array_equal(np.asarray(out.extras["episode_lengths"]),
-                                  np.asarray(again.extras["episode_lengths"]))
+    np.testing.assert_array_equal(
+        np.asarray(out.extras["episode_lengths"]), np.asarray(again.extras["episode_lengths"])
+    )
     i = 2
     key_i = jax.random.split(jax.random.PRNGKey(42), batch.shape[0])[i]
-    res = run_agent(domain.assemble(batch[i]), out.extras["start"][i], out.extras["goal"][i], key_i,
-                    kind="wall_follower", episodes=50)
+    res = run_agent(
+        domain.assemble(batch[i]),
+        out.extras["start"][i],
+        out.extras["goal"][i],
+        key_i,
+        kind="wall_follower",
+        episodes=50,
+    )
     np.testing.assert_array_equal(res.lengths, np.asarray(out.extras["episode_lengths"][i]))
 
 
@@ -294,16 +297,15 @@ def test_unknown_measure_or_agent_is_an_error():
 def test_cycle_detection_does_not_change_results():
     rng = np.random.default_rng(5)
     regions = (rng.random((6, 16, 16)) < np.linspace(0.1, 0.6, 6)[:, None, None]).astype(np.int32)
-    layouts = np.concatenate([np.pad(regions, ((0, 0), (1, 1), (1, 1)), constant_values=1),
-                              ROOM[None]])
+    layouts = np.concatenate([np.pad(regions, ((0, 0), (1, 1), (1, 1)), constant_values=1), ROOM[None]])
     length, start, goal = _lsp(jnp.asarray(layouts == 0))
     start, goal = np.array(start), np.array(goal)
     start[-1], goal[-1] = (1, 1), (4, 4)  # the room: the wall follower circles forever
     keys = jax.random.split(jax.random.PRNGKey(3), layouts.shape[0])
     policy = ma.get_policy("wall_follower")
-    plain = jax.jit(lambda *a: ma.rollout_batch(policy, *a, episodes=50, horizon=648,
-                                                detect_cycles=False))(
-        jnp.asarray(layouts), jnp.asarray(start), jnp.asarray(goal), keys)
+    plain = jax.jit(lambda *a: ma.rollout_batch(policy, *a, episodes=50, horizon=648, detect_cycles=False))(
+        jnp.asarray(layouts), jnp.asarray(start), jnp.asarray(goal), keys
+    )
     for i in range(layouts.shape[0]):  # run_agent detects cycles (same keys per maze)
         res = run_agent(layouts[i], start[i], goal[i], keys[i], kind="wall_follower")
         np.testing.assert_array_equal(res.lengths, np.asarray(plain.lengths[i]))

@@ -4,7 +4,8 @@ import math
 
 import jax.numpy as jnp
 import numpy as np
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from nca_qd.measures import batch_entropy, entropy, tile_count
 

@@ -29,8 +29,7 @@ class SortingFloor(LayoutKind):
     gen_tiles = ".@e"
     palette = {".": "white", "@": "black", "e": "#3b6fd6", "c": "#ff7f0e"}
     task = TaskModel(blocked="@", goals=(GoalKind("endpoint", "e"), GoalKind("chute", "c")))
-    construction = Construction(anchors=(SHELF,), endpoint=ENDPOINT, empty=EMPTY,
-                                exact_count=True)
+    construction = Construction(anchors=(SHELF,), endpoint=ENDPOINT, empty=EMPTY, exact_count=True)
     seed_block = ("e", "@", "e")
     seed_offsets: dict = {}
     eval_agent_step = 5
@@ -53,12 +52,18 @@ class SortingFloor(LayoutKind):
     def rules(self, shape, *, n_shelves=None, n_agents=200):
         fixed, lay = self.frame(shape)
         return Rules(
-            tiles=self.tiles, passable=frozenset({EMPTY, ENDPOINT}),
-            reach_only=frozenset({CHUTE}), free_tiles=(EMPTY, SHELF, ENDPOINT),
-            adjacency=(AdjacencyRule(frozenset({SHELF}), frozenset({ENDPOINT}), "bare shelf"),
-                       AdjacencyRule(frozenset({ENDPOINT}), frozenset({SHELF}), "bare endpoint")),
+            tiles=self.tiles,
+            passable=frozenset({EMPTY, ENDPOINT}),
+            reach_only=frozenset({CHUTE}),
+            free_tiles=(EMPTY, SHELF, ENDPOINT),
+            adjacency=(
+                AdjacencyRule(frozenset({SHELF}), frozenset({ENDPOINT}), "bare shelf"),
+                AdjacencyRule(frozenset({ENDPOINT}), frozenset({SHELF}), "bare endpoint"),
+            ),
             counts=(CountRule(frozenset({SHELF}), "==", int(n_shelves or 6), "shelves"),),
-            fixed=fixed, fixed_layout=lay)
+            fixed=fixed,
+            fixed_layout=lay,
+        )
 
     def measures(self, layouts):
         layouts = np.asarray(layouts)
@@ -126,14 +131,19 @@ def test_the_qd_scorer_takes_the_new_domain(toy):
     from nca_qd.pipeline import make_generator
 
     gen = make_generator(toy)
-    regions = np.asarray(gen.generate(
-        0.3 * jax.random.normal(jax.random.PRNGKey(1), (4, gen.n_params)),
-        toy.seed(toy.gen_shape("train")), 10))
+    regions = np.asarray(
+        gen.generate(
+            0.3 * jax.random.normal(jax.random.PRNGKey(1), (4, gen.n_params)),
+            toy.seed(toy.gen_shape("train")),
+            10,
+        )
+    )
     run_cfg = {"eval": {"workers": 0, "screen": False, "memo": False}}
     scorer = toy.make_evaluator(run_cfg)
     try:
-        batch = scorer(regions, jax.random.PRNGKey(0),
-                       ScoringContext(result_elite=lambda m: np.full(len(m), -np.inf)))
+        batch = scorer(
+            regions, jax.random.PRNGKey(0), ScoringContext(result_elite=lambda m: np.full(len(m), -np.inf))
+        )
     finally:
         scorer.close()
     assert np.asarray(batch.valid).all() and np.asarray(batch.result_valid).all()

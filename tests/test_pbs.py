@@ -26,8 +26,12 @@ def cell(rows: list[str], r: int, c: int) -> int:
 
 
 def plan(rows, starts, goals, **kw):
-    out = _core.plan(grid(rows), [cell(rows, *s) for s in starts],
-                     [[cell(rows, *g) for g in gs] for gs in goals], **{"window": W, "executed_steps": H, **kw})
+    out = _core.plan(
+        grid(rows),
+        [cell(rows, *s) for s in starts],
+        [[cell(rows, *g) for g in gs] for gs in goals],
+        **{"window": W, "executed_steps": H, **kw},
+    )
     return out["solved"], out["nodes"], out["paths"]
 
 
@@ -45,10 +49,7 @@ def planned_prefix(paths: np.ndarray) -> int:
 
 
 # A corridor with one side pocket: two agents must pass each other.
-CORRIDOR = ["@@@@@@@@@",
-            "@.......@",
-            "@@@@.@@@@",
-            "@@@@@@@@@"]
+CORRIDOR = ["@@@@@@@@@", "@.......@", "@@@@.@@@@", "@@@@@@@@@"]
 
 
 def test_corridor_swap_needs_a_branch_and_stays_collision_free():
@@ -84,12 +85,13 @@ def test_a_waiting_agent_keeps_its_start_cell():
     assert left >= H and (paths[1, :left] == end).all() and paths[1, left] == -1
     assert paths[0, left] == end  # agent 0 enters the moment agent 1 is done
     solved, _, paths = plan(rows, starts, goals, prioritize_start=False)
-    assert solved and (paths[1, :H + 1] != end).any()
+    assert solved and (paths[1, : H + 1] != end).any()
 
 
 def test_a_call_out_of_budget_is_repaired_collision_free():
-    solved, _, paths = plan(CORRIDOR, [(1, 1), (1, 7)], [[(1, 7)], [(1, 1)]], max_nodes=1,
-                            prioritize_start=False)
+    solved, _, paths = plan(
+        CORRIDOR, [(1, 1), (1, 7)], [[(1, 7)], [(1, 1)]], max_nodes=1, prioritize_start=False
+    )
     assert not solved
     assert (paths >= 0).all()  # the repair gives every agent a cell at every time
     check_moves(as_rc(paths, len(CORRIDOR[0]), H), grid(CORRIDOR).astype(bool))
@@ -99,20 +101,25 @@ def test_bad_plan_input_is_refused():
     with pytest.raises(ValueError, match="goal off"):
         _core.plan(grid(CORRIDOR), [cell(CORRIDOR, 1, 1)], [[0]])
     with pytest.raises(ValueError, match="executed_steps"):
-        _core.plan(grid(CORRIDOR), [cell(CORRIDOR, 1, 1)], [[cell(CORRIDOR, 1, 2)]], window=3,
-                   executed_steps=4)
+        _core.plan(
+            grid(CORRIDOR), [cell(CORRIDOR, 1, 1)], [[cell(CORRIDOR, 1, 2)]], window=3, executed_steps=4
+        )
 
 
 @settings(max_examples=40, deadline=None)
-@given(data=st.data(), n=st.integers(2, 12), max_nodes=st.sampled_from([0, 1, 3]),
-       prioritize=st.booleans(), seed=st.integers(0, 2**32 - 1))
+@given(
+    data=st.data(),
+    n=st.integers(2, 12),
+    max_nodes=st.sampled_from([0, 1, 3]),
+    prioritize=st.booleans(),
+    seed=st.integers(0, 2**32 - 1),
+)
 def test_every_call_executes_collision_free(data, n, max_nodes, prioritize, seed):
     """Solved or repaired, the executed steps of a call obey the movement rules."""
     rows = ["@@@@@@@", "@.....@", "@.@.@.@", "@.....@", "@@@@@@@"]
     free = [(r, c) for r in range(len(rows)) for c in range(len(rows[0])) if rows[r][c] != "@"]
     starts = data.draw(st.permutations(free))[:n]
     goals = [data.draw(st.lists(st.sampled_from(free), min_size=1, max_size=3)) for _ in range(n)]
-    solved, _, paths = plan(rows, starts, goals, max_nodes=max_nodes, prioritize_start=prioritize,
-                            seed=seed)
+    solved, _, paths = plan(rows, starts, goals, max_nodes=max_nodes, prioritize_start=prioritize, seed=seed)
     assert (paths[:, 0] == [cell(rows, *s) for s in starts]).all()
     check_moves(as_rc(paths, len(rows[0]), H), grid(rows).astype(bool))

@@ -27,8 +27,11 @@ def test_cma_mae_beats_map_elites_on_the_sphere_at_equal_budget():
     """Short form of the CMA-MAE paper's benchmark: n=100, 15 emitters x 36, 100x100 grid."""
     iters = 100
     _, mae = _run(ESEmitters(15, 36, 100, 0.5), sphere_spec(), iters)
-    _, me = _run(IsoLineEmitter(540, 100, 0.5, 0.01, 0.2, 540),
-                 sphere_spec(learning_rate=1.0, threshold_min=-np.inf), iters)
+    _, me = _run(
+        IsoLineEmitter(540, 100, 0.5, 0.01, 0.2, 540),
+        sphere_spec(learning_rate=1.0, threshold_min=-np.inf),
+        iters,
+    )
     assert mae["evaluations"] == me["evaluations"] == iters * 540
     assert mae["qd_score"] > 1.2 * me["qd_score"], (mae["qd_score"], me["qd_score"])
 

@@ -1,16 +1,14 @@
 """Repair: valid output or a status saying why not; exactness of the MILP; determinism."""
 
-
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from nca_qd.io import load_map
-from nca_qd.repair import make_rules, repair
+from nca_qd.io import load_map, reference_maps_dir
 from nca_qd.layouts import warehouse as wh
+from nca_qd.repair import make_rules, repair
 from nca_qd.repair.validator import check
-from nca_qd.io import reference_maps_dir
 
 MAPS = reference_maps_dir()
 FAST = dict(time_limit_s=20, improve_time_s=0.3)
@@ -103,9 +101,14 @@ def test_hybrid_is_valid_never_worse_than_its_start_and_optimal_with_time(cells)
 def test_hybrid_per_size_options_come_from_the_domain_config():
     from nca_qd.scoring.tasks import repair_options
 
-    cfg = {"repair": {"method": {"train": "hybrid", "eval": "neighbourhood"}, "milp_time_s": 5,
-                      "n_shelves": {"train": 240, "eval": 2250}},
-           "n_agents": {"train": 200, "eval": 1400}}
+    cfg = {
+        "repair": {
+            "method": {"train": "hybrid", "eval": "neighbourhood"},
+            "milp_time_s": 5,
+            "n_shelves": {"train": 240, "eval": 2250},
+        },
+        "n_agents": {"train": 200, "eval": 1400},
+    }
     train, evl = repair_options(cfg, "train"), repair_options(cfg, "eval")
     assert (train["method"], train["milp_time_s"], train["n_shelves"]) == ("hybrid", 5, 240)
     assert (evl["method"], evl["n_shelves"], evl["n_agents"]) == ("neighbourhood", 2250, 1400)

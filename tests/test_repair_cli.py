@@ -10,8 +10,8 @@ from experiments import render as render_cli
 from experiments import repair as repair_cli
 from experiments.cli import main_guard
 from nca_qd.io import load_map
-from nca_qd.repair import make_rules
 from nca_qd.layouts import warehouse as wh
+from nca_qd.repair import make_rules
 from nca_qd.repair.validator import check
 
 GOOD = [
@@ -42,8 +42,11 @@ def write(tmp_path, rows, name="in.json", **extra):
 def test_repair_writes_a_valid_layout_and_one_json_line(tmp_path, monkeypatch, capsys):
     src = write(tmp_path, GOOD)
     out, png = tmp_path / "out.json", tmp_path / "cmp.png"
-    code = run(repair_cli, ["domain=warehouse_even", f"layout={src}", f"out={out}", "n_shelves=6",
-                            f"render={png}"], monkeypatch)
+    code = run(
+        repair_cli,
+        ["domain=warehouse_even", f"layout={src}", f"out={out}", "n_shelves=6", f"render={png}"],
+        monkeypatch,
+    )
     assert code == 0
     line = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert line["valid"] is True and line["status"] in ("optimal", "feasible")
@@ -54,17 +57,23 @@ def test_repair_writes_a_valid_layout_and_one_json_line(tmp_path, monkeypatch, c
     assert png.stat().st_size > 1000
 
 
-@pytest.mark.parametrize("rows, extra, expect", [
-    (GOOD[:3] + ["...X....."] + GOOD[4:], {}, "unknown tile 'X' at row 3, column 3"),
-    (GOOD[:3] + ["........"] + GOOD[4:], {}, "ragged rows"),
-    (GOOD, {"n_row": 8}, "declares n_row=8"),
-    (GOOD[:1] + [".e.e@e..w"] + GOOD[2:], {}, "workstation column not as the warehouse requires"),
-    (["w" + r[1:] for r in GOOD], {}, "workstation column"),
-])
+@pytest.mark.parametrize(
+    "rows, extra, expect",
+    [
+        (GOOD[:3] + ["...X....."] + GOOD[4:], {}, "unknown tile 'X' at row 3, column 3"),
+        (GOOD[:3] + ["........"] + GOOD[4:], {}, "ragged rows"),
+        (GOOD, {"n_row": 8}, "declares n_row=8"),
+        (GOOD[:1] + [".e.e@e..w"] + GOOD[2:], {}, "workstation column not as the warehouse requires"),
+        (["w" + r[1:] for r in GOOD], {}, "workstation column"),
+    ],
+)
 def test_bad_input_one_line_exit_2(tmp_path, monkeypatch, capsys, rows, extra, expect):
     src = write(tmp_path, rows, **extra)
-    code = run(repair_cli, ["domain=warehouse_even", f"layout={src}", f"out={tmp_path / 'o.json'}",
-                            "n_shelves=6"], monkeypatch)
+    code = run(
+        repair_cli,
+        ["domain=warehouse_even", f"layout={src}", f"out={tmp_path / 'o.json'}", "n_shelves=6"],
+        monkeypatch,
+    )
     err = capsys.readouterr().err.strip()
     assert code == 2
     assert len(err.splitlines()) == 1 and "Traceback" not in err
@@ -74,8 +83,9 @@ def test_bad_input_one_line_exit_2(tmp_path, monkeypatch, capsys, rows, extra, e
 
 def test_unknown_size_without_shelf_count_is_a_usage_error(tmp_path, monkeypatch, capsys):
     src = write(tmp_path, GOOD)
-    code = run(repair_cli, ["domain=warehouse_even", f"layout={src}", f"out={tmp_path / 'o.json'}"],
-               monkeypatch)
+    code = run(
+        repair_cli, ["domain=warehouse_even", f"layout={src}", f"out={tmp_path / 'o.json'}"], monkeypatch
+    )
     err = capsys.readouterr().err
     assert code == 2 and "n_shelves" in err and str(src) in err
 
@@ -85,8 +95,10 @@ def test_manufacturing_repair_and_render(tmp_path, monkeypatch, capsys):
     rows = ["".join(".e012"[v] for v in row) for row in rng.integers(0, 5, size=(8, 9))]
     src = write(tmp_path, rows)
     out = tmp_path / "out.json"
-    assert run(repair_cli, ["domain=manufacturing", f"layout={src}", f"out={out}", "n_agents=10"],
-               monkeypatch) == 0
+    assert (
+        run(repair_cli, ["domain=manufacturing", f"layout={src}", f"out={out}", "n_agents=10"], monkeypatch)
+        == 0
+    )
     assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["valid"] is True
     png = tmp_path / "pair.png"
     assert run(render_cli, [f"layout={src}", f"out={png}", f"compare={out}"], monkeypatch) == 0

@@ -9,13 +9,12 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
+from sim_layouts import MANUFACTURING, WAREHOUSE
 
 from nca_qd.errors import NcaQdError
 from nca_qd.sim.checker import check_run
 from nca_qd.sim.rhcr import simulate, simulate_many
 from nca_qd.sim.scenario import build_scenario
-from sim_layouts import MANUFACTURING, WAREHOUSE
-
 
 
 def run_checked(rows, scenario, n_agents, T, seed=0, **kw):
@@ -62,14 +61,17 @@ def test_initial_positions_are_distinct_and_spread():
 def test_every_agent_starts_towards_the_cycles_first_kind():
     # RHCR: each agent's first goal is an endpoint (warehouse) / a kind-0 station.
     res = simulate(WAREHOUSE, "warehouse_even", 30, 20, seed=4)
-    ends = {r * len(WAREHOUSE[0]) + c for r, row in enumerate(WAREHOUSE) for c, ch in enumerate(row)
-            if ch == "e"}
+    ends = {
+        r * len(WAREHOUSE[0]) + c for r, row in enumerate(WAREHOUSE) for c, ch in enumerate(row) if ch == "e"
+    }
     assert all(int(g[0, 0]) * len(WAREHOUSE[0]) + int(g[0, 1]) in ends for g in res.goals)
 
 
 def test_reference_starts_are_one_configuration_for_every_seed():
-    runs = [simulate(WAREHOUSE, "warehouse_even", 40, 5, seed=s, record_paths=True,
-                     reference_starts=True) for s in (0, 1, 2)]
+    runs = [
+        simulate(WAREHOUSE, "warehouse_even", 40, 5, seed=s, record_paths=True, reference_starts=True)
+        for s in (0, 1, 2)
+    ]
     starts = [r.paths[0] for r in runs]
     assert len({tuple(p) for p in starts[0].tolist()}) == 40
     assert all((s == starts[0]).all() for s in starts)
@@ -83,7 +85,7 @@ def test_reference_starts_are_one_configuration_for_every_seed():
 def warehouse_maps(draw):
     h, w = draw(st.integers(3, 8)), draw(st.integers(3, 8))
     cells = draw(st.lists(st.sampled_from("....@@eew"), min_size=h * w, max_size=h * w))
-    return ["".join(cells[r * w:(r + 1) * w]) for r in range(h)]
+    return ["".join(cells[r * w : (r + 1) * w]) for r in range(h)]
 
 
 @st.composite
@@ -107,9 +109,15 @@ def _valid(rows, scenario):
 
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.filter_too_much])
-@given(rows=warehouse_maps(), scenario=st.sampled_from(["warehouse_even", "warehouse_uneven"]),
-       density=st.floats(0.05, 1.0), T=st.integers(1, 40), seed=st.integers(0, 2**32),
-       window=st.integers(1, 12), data=st.data())
+@given(
+    rows=warehouse_maps(),
+    scenario=st.sampled_from(["warehouse_even", "warehouse_uneven"]),
+    density=st.floats(0.05, 1.0),
+    T=st.integers(1, 40),
+    seed=st.integers(0, 2**32),
+    window=st.integers(1, 12),
+    data=st.data(),
+)
 def test_random_warehouses_always_valid(rows, scenario, density, T, seed, window, data):
     scen = _valid(rows, scenario)
     assume(scen is not None)
@@ -121,8 +129,9 @@ def test_random_warehouses_always_valid(rows, scenario, density, T, seed, window
 
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.filter_too_much])
-@given(rows=manufacturing_maps(), density=st.floats(0.05, 1.0), T=st.integers(1, 40),
-       seed=st.integers(0, 2**32))
+@given(
+    rows=manufacturing_maps(), density=st.floats(0.05, 1.0), T=st.integers(1, 40), seed=st.integers(0, 2**32)
+)
 def test_random_manufacturing_always_valid(rows, density, T, seed):
     scen = _valid(rows, "manufacturing")
     assume(scen is not None)
@@ -135,7 +144,7 @@ def test_dense_map_congests_and_stops_early():
     assert res.congested and not res.success
     assert res.stop_time < 500 and res.stop_time % 5 == 0
     assert res.paths.shape[0] == res.stop_time + 1
-    assert not res.tasks_per_step[res.stop_time:].any()
+    assert not res.tasks_per_step[res.stop_time :].any()
 
 
 def test_pbs_failure_fallback_stays_collision_free():
@@ -164,13 +173,12 @@ def test_uneven_prefers_left_workstations():
     even, n_even = left_share("warehouse_even")
     uneven, n_uneven = left_share("warehouse_uneven")
     assert n_even > 200 and n_uneven > 200
-    assert 0.4 < even < 0.6            # three workstations per side, equal weights
-    assert 0.76 < uneven < 0.9         # weights 5:1 -> 5/6
+    assert 0.4 < even < 0.6  # three workstations per side, equal weights
+    assert 0.76 < uneven < 0.9  # weights 5:1 -> 5/6
 
 
 def test_simulate_many_matches_serial_runs():
-    many = simulate_many(WAREHOUSE, "warehouse_even", 15, 80, seeds=[0, 1, 2], threads=2,
-                         record_paths=True)
+    many = simulate_many(WAREHOUSE, "warehouse_even", 15, 80, seeds=[0, 1, 2], threads=2, record_paths=True)
     for res, seed in zip(many, [0, 1, 2]):
         one = simulate(WAREHOUSE, "warehouse_even", 15, 80, seed, record_paths=True)
         assert res.seed == seed and np.array_equal(res.paths, one.paths)
@@ -180,8 +188,9 @@ def test_simulate_many_matches_serial_runs():
 def test_core_releases_the_gil():
     big = [row * 3 for row in WAREHOUSE] * 3  # 27 x 36
     box = {}
-    worker = threading.Thread(target=lambda: box.setdefault(
-        "r", simulate(big, "warehouse_even", 150, 400, seed=0)))
+    worker = threading.Thread(
+        target=lambda: box.setdefault("r", simulate(big, "warehouse_even", 150, 400, seed=0))
+    )
     worker.start()
     gaps, last = [], time.perf_counter()
     while worker.is_alive():
@@ -196,15 +205,18 @@ def test_core_releases_the_gil():
     assert max(gaps) < 0.5 * wall + 0.02
 
 
-@pytest.mark.parametrize("rows, scenario, n, T, message", [
-    (WAREHOUSE, "warehouse_even", 1000, 10, "traversable tiles"),
-    (WAREHOUSE, "warehouse_even", 5, 0, "positive"),
-    (WAREHOUSE, "warehouse_fancy", 5, 10, "unknown scenario"),
-    (["e.@w", "..@."], "warehouse_even", 2, 10, "not all connected"),
-    (["w.e", "@@@", "..."], "warehouse_even", 2, 10, "not all connected"),
-    (["e0e1e"], "manufacturing", 1, 10, "kind-2"),
-    (["x..w"], "warehouse_even", 1, 10, "unknown tile"),
-])
+@pytest.mark.parametrize(
+    "rows, scenario, n, T, message",
+    [
+        (WAREHOUSE, "warehouse_even", 1000, 10, "traversable tiles"),
+        (WAREHOUSE, "warehouse_even", 5, 0, "positive"),
+        (WAREHOUSE, "warehouse_fancy", 5, 10, "unknown scenario"),
+        (["e.@w", "..@."], "warehouse_even", 2, 10, "not all connected"),
+        (["w.e", "@@@", "..."], "warehouse_even", 2, 10, "not all connected"),
+        (["e0e1e"], "manufacturing", 1, 10, "kind-2"),
+        (["x..w"], "warehouse_even", 1, 10, "unknown tile"),
+    ],
+)
 def test_bad_input_is_a_clear_error(rows, scenario, n, T, message):
     with pytest.raises(NcaQdError, match=message):
         simulate(rows, scenario, n, T, seed=0)

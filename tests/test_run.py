@@ -11,15 +11,24 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import TINY_MAZE as TINY
 
 from experiments.cli import compose_config
-from conftest import TINY_MAZE as TINY
 from nca_qd.experiment import Experiment
 
 REPO = Path(__file__).resolve().parents[1]
-OUTPUTS = ["config.yaml", "metrics.csv", "checkpoint.npz", "archive_result.npz",
-           "archive_opt.npz", "archive_result.png", "archive_opt.png", "curves.png",
-           "best_train.png", "best_eval.png"]
+OUTPUTS = [
+    "config.yaml",
+    "metrics.csv",
+    "checkpoint.npz",
+    "archive_result.npz",
+    "archive_opt.npz",
+    "archive_result.png",
+    "archive_opt.png",
+    "curves.png",
+    "best_train.png",
+    "best_eval.png",
+]
 
 
 def _cfg(*extra):
@@ -58,10 +67,12 @@ def test_exact_resume_continues_and_ends_where_an_uninterrupted_run_ends(full_ru
     exp = Experiment(_cfg("qd.n_evals=40", "output.pictures=false", "checkpoint.exact=true"), part)
     state = exp.run(resume=True)
     assert [int(r["iteration"]) for r in _metrics(part)] == [1, 2, 3, 4, 5]
-    np.testing.assert_array_equal(np.asarray(state.res_archive.fitnesses),
-                                  np.asarray(reference.res_archive.fitnesses))
-    np.testing.assert_array_equal(np.asarray(state.opt_archive.thresholds),
-                                  np.asarray(reference.opt_archive.thresholds))
+    np.testing.assert_array_equal(
+        np.asarray(state.res_archive.fitnesses), np.asarray(reference.res_archive.fitnesses)
+    )
+    np.testing.assert_array_equal(
+        np.asarray(state.opt_archive.thresholds), np.asarray(reference.opt_archive.thresholds)
+    )
 
 
 def test_a_run_in_progress_is_read_from_its_checkpoint(full_run, tmp_path):
@@ -102,21 +113,30 @@ def test_a_run_in_progress_is_read_from_its_checkpoint(full_run, tmp_path):
 
 def _cli(*args, timeout=300):
     env = {**os.environ, "JAX_PLATFORMS": "cpu"}
-    return subprocess.run([sys.executable, "-m", "experiments.run", *args], cwd=REPO,
-                          capture_output=True, text=True, timeout=timeout, env=env)
+    return subprocess.run(
+        [sys.executable, "-m", "experiments.run", *args],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env=env,
+    )
 
 
-@pytest.mark.parametrize("args,message", [
-    (["domain=nowhere"], "bad configuration"),
-    (["algo=simulated_annealing"], "bad configuration"),
-    (["qd.n_evals=abc"], "qd.n_evals must be a positive integer"),
-    (["qd.n_evals=-5"], "qd.n_evals must be a positive integer"),
-    (["domain.size.train=[0,16]"], "domain.size.train must be two integers"),
-    (["resume=/nonexistent/run"], "does not exist"),
-    (["checkpoint.restart_dtype=int4"], "checkpoint restart_dtype must be int8, float16 or float32"),
-    (["checkpoint.exact=maybe"], "checkpoint exact must be true or false"),
-    (["snapshot.exact_elites=-1"], "checkpoint exact_elites must be a non-negative integer"),
-])
+@pytest.mark.parametrize(
+    "args,message",
+    [
+        (["domain=nowhere"], "bad configuration"),
+        (["algo=simulated_annealing"], "bad configuration"),
+        (["qd.n_evals=abc"], "qd.n_evals must be a positive integer"),
+        (["qd.n_evals=-5"], "qd.n_evals must be a positive integer"),
+        (["domain.size.train=[0,16]"], "domain.size.train must be two integers"),
+        (["resume=/nonexistent/run"], "does not exist"),
+        (["checkpoint.restart_dtype=int4"], "checkpoint restart_dtype must be int8, float16 or float32"),
+        (["checkpoint.exact=maybe"], "checkpoint exact must be true or false"),
+        (["snapshot.exact_elites=-1"], "checkpoint exact_elites must be a non-negative integer"),
+    ],
+)
 def test_bad_input_gets_one_line_and_exit_2(args, message):
     out = _cli(*args)
     assert out.returncode == 2, out.stderr
@@ -134,9 +154,14 @@ def test_resume_of_another_domain_is_refused(full_run):
 def test_ctrl_c_leaves_a_resumable_checkpoint(tmp_path):
     run_dir = tmp_path / "interrupted"
     args = TINY + ["qd.n_evals=4000", f"run_dir={run_dir}"]
-    proc = subprocess.Popen([sys.executable, "-m", "experiments.run", *args], cwd=REPO,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, "JAX_PLATFORMS": "cpu"})
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "experiments.run", *args],
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "JAX_PLATFORMS": "cpu"},
+    )
     deadline = time.time() + 240
     while time.time() < deadline and not (run_dir / "checkpoint.npz").exists():
         time.sleep(0.5)
@@ -193,11 +218,12 @@ def test_render_draws_archive_elites(full_run, tmp_path):
 
 @pytest.mark.parametrize("algo", ["map_elites", "cma_es"])
 def test_baselines_run_end_to_end(algo, tmp_path):
-    state = Experiment(_cfg(f"algo={algo}", "qd.n_evals=16", "output.pictures=false"),
-                       tmp_path / algo).run()
+    state = Experiment(_cfg(f"algo={algo}", "qd.n_evals=16", "output.pictures=false"), tmp_path / algo).run()
     assert int(state.evaluations) == 16
     assert bool(np.isfinite(np.asarray(state.res_archive.fitnesses)).any())
     # the baselines use a plain archive: thresholds equal the elites' objectives
     occupied = np.asarray(state.opt_archive.occupied)
-    np.testing.assert_array_equal(np.asarray(state.opt_archive.thresholds)[occupied],
-                                  np.asarray(state.opt_archive.fitnesses[:, 0])[occupied])
+    np.testing.assert_array_equal(
+        np.asarray(state.opt_archive.thresholds)[occupied],
+        np.asarray(state.opt_archive.fitnesses[:, 0])[occupied],
+    )

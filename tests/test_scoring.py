@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import csv
 import os
-import time
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -25,11 +25,20 @@ REPO = Path(__file__).resolve().parents[1]
 
 # A tiny warehouse: 9x10 storage area (9x14 with the workstation columns), 10 agents.
 TINY_WAREHOUSE = [
-    "domain=warehouse_even", "domain.size.train=[9,10]", "domain.size.eval=[13,14]",
-    "domain.repair.n_shelves.train=20", "domain.repair.n_shelves.eval=40",
-    "domain.n_agents.train=10", "domain.n_agents.eval=20", "domain.simulation.T=60",
-    "domain.simulation.n_runs=2", "domain.measures.ranges=[[0,1],[0,30]]",
-    "domain.measures.cells=[10,10]", "qd.n_emitters=2", "qd.batch_size=3", "qd.progress=false",
+    "domain=warehouse_even",
+    "domain.size.train=[9,10]",
+    "domain.size.eval=[13,14]",
+    "domain.repair.n_shelves.train=20",
+    "domain.repair.n_shelves.eval=40",
+    "domain.n_agents.train=10",
+    "domain.n_agents.eval=20",
+    "domain.simulation.T=60",
+    "domain.simulation.n_runs=2",
+    "domain.measures.ranges=[[0,1],[0,30]]",
+    "domain.measures.cells=[10,10]",
+    "qd.n_emitters=2",
+    "qd.batch_size=3",
+    "qd.progress=false",
     # a window budget, not time: repairs (and so resumed runs) do not depend on the machine's load
     "domain.repair.improve_windows=4",
 ]
@@ -106,8 +115,9 @@ def test_an_interrupt_stops_the_pool_without_waiting_for_running_jobs():
 
 def test_dask_backend_runs_jobs_on_a_cluster():
     distributed = pytest.importorskip("distributed")
-    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
-                                  dashboard_address=None) as cluster:
+    with distributed.LocalCluster(
+        n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None
+    ) as cluster:
         be = make_backend({"scheduler": cluster.scheduler_address})
         try:
             assert be.name == "dask"
@@ -212,14 +222,14 @@ def test_batch_scores_match_independent_recomputation(tiny_scorer):
     for i in range(4):
         assert ev.valid[i], ex["repair_status"][i]
         assert check(ex["repaired"][i], rules) is None
-        np.testing.assert_allclose(ev.measures[i], domain.measures(ex["repaired"][i][None])[0],
-                                   rtol=1e-6)
+        np.testing.assert_allclose(ev.measures[i], domain.measures(ex["repaired"][i][None])[0], rtol=1e-6)
         empty = ev.measures[i][0] < 0.1
         assert bool(ev.result_valid[i]) == (empty or not np.isnan(ex["exact"][i]))
         if not np.isnan(ex["exact"][i]):
             rows = array_to_rows(ex["repaired"][i], domain.layout_tiles)
-            direct = np.mean([simulate(rows, "warehouse_even", 10, 60, seed0 + s).throughput
-                              for s in range(2)])
+            direct = np.mean(
+                [simulate(rows, "warehouse_even", 10, 60, seed0 + s).throughput for s in range(2)]
+            )
             assert ev.result_objective[i] == pytest.approx(direct, abs=1e-6)
             f = ex["exact"][i]
         else:
@@ -258,23 +268,26 @@ def test_empty_cells_skip_the_screen(tiny_scorer):
         scorer.cfg = saved
     empty = seen["empty"]
     assert empty.any() and (~empty).any()
-    np.testing.assert_array_equal(empty, np.asarray(ev.measures)[:, 0]
-                                  < np.median(np.asarray(ev.measures)[:, 0]))
+    np.testing.assert_array_equal(
+        empty, np.asarray(ev.measures)[:, 0] < np.median(np.asarray(ev.measures)[:, 0])
+    )
     ex = ev.extras
-    assert np.isfinite(ex["exact"][empty]).all()              # empty cells: exact
-    assert np.isfinite(ex["screened"][~empty]).all()          # occupied: screened ...
-    assert np.isnan(ex["exact"][~empty]).all()                # ... and unbeatable: no exact
+    assert np.isfinite(ex["exact"][empty]).all()  # empty cells: exact
+    assert np.isfinite(ex["screened"][~empty]).all()  # occupied: screened ...
+    assert np.isnan(ex["exact"][~empty]).all()  # ... and unbeatable: no exact
     assert np.isnan(ex["screened"][empty]).all()
     assert ev.valid.all() and (ev.result_valid == empty).all()
     # Which layouts the screen gets under the other settings (no simulation needed).
     valid = np.array([True, True, True, False])
     elite = np.array([-np.inf, 1.0, -np.inf, 1.0])
     rng = np.random.default_rng(0)
-    for cfg, want in [(dict(exact_random_share=0.0), [False, True, False, False]),
-                      (dict(exact_random_share=1.0), [True, True, True, False]),
-                      (dict(screen_empty_cells=True), [True, True, True, False]),
-                      (dict(exact="all"), [True, True, True, False]),
-                      (dict(screen=False, exact="all"), [False, False, False, False])]:
+    for cfg, want in [
+        (dict(exact_random_share=0.0), [False, True, False, False]),
+        (dict(exact_random_share=1.0), [True, True, True, False]),
+        (dict(screen_empty_cells=True), [True, True, True, False]),
+        (dict(exact="all"), [True, True, True, False]),
+        (dict(screen=False, exact="all"), [False, False, False, False]),
+    ]:
         scorer.cfg = dataclasses.replace(saved, **cfg)
         try:
             assert scorer._to_screen(valid, elite, rng).tolist() == want, cfg
@@ -343,7 +356,7 @@ def test_memo_survives_a_file_and_a_resume_drops_later_entries(tmp_path):
     assert memo.repair(b"\x02" * 20) is None and memo.exact(b"\x05" * 20) is None
     memo.save(tmp_path / "m.npz")
     back = EvalMemo.load(tmp_path / "m.npz", "settings A")
-    rep = back.repair(b"\x00" * 20)   # digests ending in zero bytes keep them
+    rep = back.repair(b"\x00" * 20)  # digests ending in zero bytes keep them
     np.testing.assert_array_equal(rep.layout, lay)
     assert (rep.status, rep.similarity, rep.hamming) == ("repaired", 0.9, 2)
     none = back.repair(b"\x01" * 19 + b"\x00")
@@ -411,8 +424,11 @@ def test_memo_repairs_and_simulates_each_distinct_layout_once(tiny_scorer):
             assert ev.objective[i] == ev.objective[j]
             assert ev.result_objective[i] == ev.result_objective[j]
         # a later batch, other seeds: every result is remembered, no job runs
-        again = scorer(regions, jax.random.PRNGKey(8),
-                       ScoringContext(result_elite=lambda m: np.full(len(m), 1e9), iteration=2))
+        again = scorer(
+            regions,
+            jax.random.PRNGKey(8),
+            ScoringContext(result_elite=lambda m: np.full(len(m), 1e9), iteration=2),
+        )
         assert calls == {"repair": [2], "exact": [2]}
         np.testing.assert_array_equal(again.objective, ev.objective)
         np.testing.assert_array_equal(again.result_objective, ev.result_objective)
@@ -426,8 +442,14 @@ def test_memo_repairs_and_simulates_each_distinct_layout_once(tiny_scorer):
 # ------------------------------------------------------------------------------ full runs
 def _run(args, timeout=600):
     env = {**os.environ, "JAX_PLATFORMS": "cpu"}
-    return subprocess.run([sys.executable, "-m", "experiments.run", *args], cwd=REPO, env=env,
-                          capture_output=True, text=True, timeout=timeout)
+    return subprocess.run(
+        [sys.executable, "-m", "experiments.run", *args],
+        cwd=REPO,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
 
 
 def test_tiny_warehouse_run_writes_outputs_and_resumes_identically(tmp_path):
@@ -440,8 +462,7 @@ def test_tiny_warehouse_run_writes_outputs_and_resumes_identically(tmp_path):
     assert part.returncode == 0, part.stderr[-2000:]
     more = _run([f"resume={tmp_path / 'part'}", "qd.n_evals=18"])
     assert more.returncode == 0, more.stderr[-2000:]
-    for name in ("best_train_repaired.png", "best_eval_repaired.png", "archive_result.png",
-                 "curves.png"):
+    for name in ("best_train_repaired.png", "best_eval_repaired.png", "archive_result.png", "curves.png"):
         assert (tmp_path / "full" / name).is_file(), name
     with open(tmp_path / "full" / "metrics.csv") as fh:
         rows = list(csv.DictReader(fh))
@@ -460,8 +481,12 @@ def test_a_tiny_warehouse_run_resumes_from_its_portable_snapshot_on_a_fresh_clon
     machine; the run continues from the snapshot to its end."""
     import shutil
 
-    common = TINY_WAREHOUSE + ["eval.workers=0", "output.pictures=false", "snapshot.enabled=true",
-                               "snapshot.exact_elites=1"]
+    common = TINY_WAREHOUSE + [
+        "eval.workers=0",
+        "output.pictures=false",
+        "snapshot.enabled=true",
+        "snapshot.exact_elites=1",
+    ]
     first = _run(common + ["qd.n_evals=12", f"run_dir={tmp_path / 'leg1'}"])
     assert first.returncode == 0, first.stderr[-2000:]
     leg1 = tmp_path / "leg1"
@@ -484,11 +509,16 @@ def test_a_tiny_warehouse_run_resumes_from_its_portable_snapshot_on_a_fresh_clon
     assert np.isfinite(a["objective"]).all() and a["genotypes"].shape[0] == a["objective"].size
 
 
-@pytest.mark.parametrize("args, message", [
-    (["eval.exact=sometimes"], "eval.exact must be one of selective, all"),
-    (["eval.scheduler=tcp://127.0.0.1:9", "eval.connect_timeout_s=1"],
-     "cannot reach the Dask scheduler at tcp://127.0.0.1:9"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["eval.exact=sometimes"], "eval.exact must be one of selective, all"),
+        (
+            ["eval.scheduler=tcp://127.0.0.1:9", "eval.connect_timeout_s=1"],
+            "cannot reach the Dask scheduler at tcp://127.0.0.1:9",
+        ),
+    ],
+)
 def test_bad_eval_settings_get_one_line_and_exit_2(args, message, tmp_path):
     res = _run(TINY_WAREHOUSE + ["qd.n_evals=6", f"run_dir={tmp_path / 'r'}"] + args, timeout=120)
     assert res.returncode == 2

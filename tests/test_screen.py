@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
+from sim_layouts import MANUFACTURING, WAREHOUSE
 
 from nca_qd.errors import NcaQdError
 from nca_qd.sim import screen
 from nca_qd.sim.checker import check_run, recount_tasks
 from nca_qd.sim.scenario import build_scenario
-from sim_layouts import MANUFACTURING, WAREHOUSE
 from nca_qd.sim.screen import simulate, simulate_batch
 
 # Shared settings so that most tests reuse one compiled program.
@@ -101,16 +101,19 @@ def test_congestion_stops_a_jammed_run():
     assert res.throughput == pytest.approx(res.finished_tasks / 30)
 
 
-@pytest.mark.parametrize("rows, scenario, agents, horizon, message", [
-    (WAREHOUSE, "warehouse_even", 500, 10, "traversable tiles"),
-    (WAREHOUSE, "warehouse_odd", 5, 10, "unknown scenario"),
-    (["w.e@.e.w"], "warehouse_even", 2, 10, "not all connected"),
-    (["w.e.x..w"], "warehouse_even", 2, 10, "x"),
-    (WAREHOUSE, "warehouse_even", 0, 10, "at least one agent"),
-    (WAREHOUSE, "warehouse_even", 5, 0, "horizon"),
-    (WAREHOUSE, "warehouse_even", 50_000, 10, "at most 46340 agents"),
-    ([WAREHOUSE, WAREHOUSE[:-1]], "warehouse_even", 5, 10, "one shape"),
-])
+@pytest.mark.parametrize(
+    "rows, scenario, agents, horizon, message",
+    [
+        (WAREHOUSE, "warehouse_even", 500, 10, "traversable tiles"),
+        (WAREHOUSE, "warehouse_odd", 5, 10, "unknown scenario"),
+        (["w.e@.e.w"], "warehouse_even", 2, 10, "not all connected"),
+        (["w.e.x..w"], "warehouse_even", 2, 10, "x"),
+        (WAREHOUSE, "warehouse_even", 0, 10, "at least one agent"),
+        (WAREHOUSE, "warehouse_even", 5, 0, "horizon"),
+        (WAREHOUSE, "warehouse_even", 50_000, 10, "at most 46340 agents"),
+        ([WAREHOUSE, WAREHOUSE[:-1]], "warehouse_even", 5, 10, "one shape"),
+    ],
+)
 def test_bad_input_errors_before_compilation(monkeypatch, rows, scenario, agents, horizon, message):
     def no_compile(*a, **k):
         raise AssertionError("compiled despite bad input")
@@ -126,9 +129,23 @@ def test_cli_screen_prints_runs_and_summary(tmp_path):
     layout.write_text(json.dumps({"name": "wh", "layout": WAREHOUSE}))
     out = tmp_path / "paths.npz"
     proc = subprocess.run(
-        [sys.executable, "-m", "experiments.simulate", "domain=warehouse_even",
-         f"layout={layout}", f"agents={N}", f"T={T}", "seeds=2", "seed=3", "simulator=screen",
-         f"paths_out={out}"], capture_output=True, text=True, timeout=120)
+        [
+            sys.executable,
+            "-m",
+            "experiments.simulate",
+            "domain=warehouse_even",
+            f"layout={layout}",
+            f"agents={N}",
+            f"T={T}",
+            "seeds=2",
+            "seed=3",
+            "simulator=screen",
+            f"paths_out={out}",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 0, proc.stderr
     lines = [json.loads(x) for x in proc.stdout.strip().splitlines()]
     assert [r["seed"] for r in lines[:2]] == [3, 4] and lines[2]["summary"]
@@ -139,25 +156,38 @@ def test_cli_screen_prints_runs_and_summary(tmp_path):
 
 
 def test_crowding_proxy_stops_a_packed_room_that_rhcrs_rule_lets_run():
-    room = ["w.......w", ".eeeeeee.", ".........", ".eeeeeee.", "w.......w", ".eeeeeee.",
-            ".........", ".eeeeeee.", "w.......w"]
+    room = [
+        "w.......w",
+        ".eeeeeee.",
+        ".........",
+        ".eeeeeee.",
+        "w.......w",
+        ".eeeeeee.",
+        ".........",
+        ".eeeeeee.",
+        "w.......w",
+    ]
     horizon = 100  # past the first check at which the crowding rule may stop a run
-    crowded = simulate(room, "warehouse_even", 60, horizon, 0, record_paths=True,
-                       congestion="crowding")
+    crowded = simulate(room, "warehouse_even", 60, horizon, 0, record_paths=True, congestion="crowding")
     check_run(crowded, room)
     # stops at the first check allowed (the 10th, t=50): >= 17 agents in a 5x5 block on average
     assert crowded.congested and crowded.stop_time == 5 * screen.CROWD_MIN_CHECKS
-    assert crowded.crowding[:screen.CROWD_MIN_CHECKS].mean() >= screen.CROWD_MEAN
+    assert crowded.crowding[: screen.CROWD_MIN_CHECKS].mean() >= screen.CROWD_MEAN
     moved = simulate(room, "warehouse_even", 60, horizon, 0, record_paths=True, congestion="moved")
     check_run(moved, room)
     assert moved.success and moved.stop_time == horizon
     stop = crowded.stop_time
-    np.testing.assert_array_equal(moved.paths[:stop + 1], crowded.paths)  # same run up to the stop
+    np.testing.assert_array_equal(moved.paths[: stop + 1], crowded.paths)  # same run up to the stop
 
 
-@pytest.mark.parametrize("option, message", [({"congestion": "jam"}, "congestion rule"),
-                                             ({"priority": "oldest"}, "priority"),
-                                             ({"replan": 0}, "replan")])
+@pytest.mark.parametrize(
+    "option, message",
+    [
+        ({"congestion": "jam"}, "congestion rule"),
+        ({"priority": "oldest"}, "priority"),
+        ({"replan": 0}, "replan"),
+    ],
+)
 def test_bad_options_error_before_compilation(monkeypatch, option, message):
     monkeypatch.setattr(screen, "_batched", lambda *a, **k: pytest.fail("compiled"))
     with pytest.raises(NcaQdError, match=message):
@@ -218,6 +248,7 @@ def test_shortcuts_leave_the_pibt_plan_unchanged(monkeypatch):
 def _bfs(grid: np.ndarray, goal: int) -> np.ndarray:
     """Independent breadth-first distances from one flat cell (INF16 where unreachable)."""
     from collections import deque
+
     H, W = grid.shape
     out = np.full(H * W, screen.INF16, np.int64)
     if goal < 0 or not grid.flat[goal]:
@@ -243,7 +274,7 @@ def test_distance_tables_are_breadth_first_distances(data, density, chunk):
 
     rng = np.random.default_rng(data.draw(st.integers(0, 2**32 - 1)))
     grid = rng.random((6, 9)) >= density
-    goals = rng.integers(-1, grid.size, 7)          # -1: a padding row
+    goals = rng.integers(-1, grid.size, 7)  # -1: a padding row
     fn = jax.jit(screen.distance_table, static_argnames="chunk")
     got = np.asarray(fn(grid, goals.astype(np.int32), chunk=chunk))
     want = np.stack([_bfs(grid, int(g)) for g in goals])
@@ -265,5 +296,4 @@ def test_distance_tables_split_over_threads_are_the_same(monkeypatch):
     assert one.shape == two.shape == (2, 21, 56)
     np.testing.assert_array_equal(one, two)
     for li in range(2):
-        np.testing.assert_array_equal(one[li], np.stack([_bfs(grids[li], int(g))
-                                                         for g in goals[li]]))
+        np.testing.assert_array_equal(one[li], np.stack([_bfs(grids[li], int(g)) for g in goals[li]]))

@@ -13,26 +13,50 @@ import pytest
 
 from nca_qd.sim.checker import check_run, recount_tasks
 
-WAREHOUSE = ["............", "w.eeee.eeeew", "..@@@@.@@@@.", "..eeee.eeee.", "w..........w",
-             "..eeee.eeee.", "..@@@@.@@@@.", "w.eeee.eeeew", "............"]
+WAREHOUSE = [
+    "............",
+    "w.eeee.eeeew",
+    "..@@@@.@@@@.",
+    "..eeee.eeee.",
+    "w..........w",
+    "..eeee.eeee.",
+    "..@@@@.@@@@.",
+    "w.eeee.eeeew",
+    "............",
+]
 
 
 def write_map(path: Path, rows: list[str]) -> str:
-    path.write_text(json.dumps({"name": path.stem, "n_row": len(rows), "n_col": len(rows[0]),
-                                "layout": rows}))
+    path.write_text(
+        json.dumps({"name": path.stem, "n_row": len(rows), "n_col": len(rows[0]), "layout": rows})
+    )
     return str(path)
 
 
 def run_cli(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "experiments.simulate", *args], cwd=cwd,
-                          capture_output=True, text=True, timeout=120)
+    return subprocess.run(
+        [sys.executable, "-m", "experiments.simulate", *args],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
 
 
 def test_prints_one_line_per_run_and_a_summary(tmp_path):
     layout = write_map(tmp_path / "wh.json", WAREHOUSE)
     out = tmp_path / "paths.npz"
-    proc = run_cli("domain=warehouse_even", f"layout={layout}", "agents=12", "T=60", "seeds=3",
-                   "seed=5", "threads=2", f"paths_out={out}", cwd=tmp_path)
+    proc = run_cli(
+        "domain=warehouse_even",
+        f"layout={layout}",
+        "agents=12",
+        "T=60",
+        "seeds=3",
+        "seed=5",
+        "threads=2",
+        f"paths_out={out}",
+        cwd=tmp_path,
+    )
     assert proc.returncode == 0, proc.stderr
     lines = [json.loads(line) for line in proc.stdout.strip().splitlines()]
     assert len(lines) == 4
@@ -54,24 +78,34 @@ def test_prints_one_line_per_run_and_a_summary(tmp_path):
         goals = [flat[a:b] for a, b in zip(off[:-1], off[1:])]
         paths = data[f"paths_seed{s}"]
         done = recount_tasks(paths, goals)
-        res = SimpleNamespace(paths=paths, goals=goals, stop_time=60, T=60, scenario="warehouse_even",
-                              tasks_per_step=done, throughput=done.sum() / 60)
+        res = SimpleNamespace(
+            paths=paths,
+            goals=goals,
+            stop_time=60,
+            T=60,
+            scenario="warehouse_even",
+            tasks_per_step=done,
+            throughput=done.sum() / 60,
+        )
         check_run(res, WAREHOUSE)
         assert done.sum() / 60 == pytest.approx(r["throughput"])
 
 
-@pytest.mark.parametrize("rows, args, message", [
-    (WAREHOUSE, ["agents=500"], "traversable tiles"),
-    (["e.@w", "..@."], [], "not all connected"),
-    (WAREHOUSE, ["domain=warehouse_mixed"], "unknown scenario"),
-    (WAREHOUSE, ["T=0"], "T must be >= 1"),
-    (WAREHOUSE, ["T=-5"], "T must be >= 1"),
-    (WAREHOUSE, ["simulator=quantum"], "unknown simulator 'quantum'"),
-    (WAREHOUSE, ["domain=manufacturing"], "unknown tile"),
-    (WAREHOUSE, ["pbs_max_nodes=-3"], "pbs_max_nodes must be a positive integer, auto or null"),
-    (WAREHOUSE, ["plan_time_limit_s=0"], "plan_time_limit_s must be a positive number"),
-    (WAREHOUSE, ["prioritize_start=maybe"], "prioritize_start must be true or false"),
-])
+@pytest.mark.parametrize(
+    "rows, args, message",
+    [
+        (WAREHOUSE, ["agents=500"], "traversable tiles"),
+        (["e.@w", "..@."], [], "not all connected"),
+        (WAREHOUSE, ["domain=warehouse_mixed"], "unknown scenario"),
+        (WAREHOUSE, ["T=0"], "T must be >= 1"),
+        (WAREHOUSE, ["T=-5"], "T must be >= 1"),
+        (WAREHOUSE, ["simulator=quantum"], "unknown simulator 'quantum'"),
+        (WAREHOUSE, ["domain=manufacturing"], "unknown tile"),
+        (WAREHOUSE, ["pbs_max_nodes=-3"], "pbs_max_nodes must be a positive integer, auto or null"),
+        (WAREHOUSE, ["plan_time_limit_s=0"], "plan_time_limit_s must be a positive number"),
+        (WAREHOUSE, ["prioritize_start=maybe"], "prioritize_start must be true or false"),
+    ],
+)
 def test_bad_input_is_one_line_exit_2(tmp_path, rows, args, message):
     layout = write_map(tmp_path / "m.json", rows)
     proc = run_cli(f"layout={layout}", "agents=2", "T=10", "seeds=1", *args, cwd=tmp_path)
@@ -84,8 +118,15 @@ def test_bad_input_is_one_line_exit_2(tmp_path, rows, args, message):
 def test_time_limit_says_timed_out(tmp_path):
     big = [row * 6 for row in WAREHOUSE] * 6
     layout = write_map(tmp_path / "big.json", big)
-    proc = run_cli("domain=warehouse_even", f"layout={layout}", "agents=800", "T=100000",
-                   "seeds=1", "time_limit_s=0.2", cwd=tmp_path)
+    proc = run_cli(
+        "domain=warehouse_even",
+        f"layout={layout}",
+        "agents=800",
+        "T=100000",
+        "seeds=1",
+        "time_limit_s=0.2",
+        cwd=tmp_path,
+    )
     assert proc.returncode == 0, proc.stderr
     run = json.loads(proc.stdout.splitlines()[0])
     assert run["timed_out"] and not run["success"] and run["stop_time"] < 100000

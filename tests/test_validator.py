@@ -1,14 +1,12 @@
 """The independent validator: names each violated constraint and where; human layouts pass."""
 
-
 import pytest
 
-from nca_qd.io import load_map, rows_to_array
-from nca_qd.repair import make_rules
+from nca_qd.io import load_map, reference_maps_dir, rows_to_array
 from nca_qd.layouts import manufacturing as mf
 from nca_qd.layouts import warehouse as wh
+from nca_qd.repair import make_rules
 from nca_qd.repair.validator import check, violation_mask, violations
-from nca_qd.io import reference_maps_dir
 
 MAPS = reference_maps_dir()
 
@@ -32,12 +30,15 @@ def test_small_warehouse_is_valid():
     assert check(wh_layout(WAREHOUSE), wh.rules((7, 9), n_shelves=3)) is None
 
 
-@pytest.mark.parametrize("edit, constraint, cell", [
-    ((2, 5, "e"), "adjacency", (2, 5)),      # endpoint without a shelf
-    ((0, 4, "@"), "adjacency", (0, 4)),      # shelf without an endpoint
-    ((1, 0, "."), "fixed", (1, 0)),          # workstation removed
-    ((1, 1, "@"), "fixed", (1, 1)),          # the empty column next to it
-])
+@pytest.mark.parametrize(
+    "edit, constraint, cell",
+    [
+        ((2, 5, "e"), "adjacency", (2, 5)),  # endpoint without a shelf
+        ((0, 4, "@"), "adjacency", (0, 4)),  # shelf without an endpoint
+        ((1, 0, "."), "fixed", (1, 0)),  # workstation removed
+        ((1, 1, "@"), "fixed", (1, 1)),  # the empty column next to it
+    ],
+)
 def test_single_edits_are_named(edit, constraint, cell):
     rows = [list(r) for r in WAREHOUSE]
     r, c, ch = edit
@@ -87,8 +88,9 @@ def test_manufacturing_rules():
 
 
 @pytest.mark.skipif(not MAPS.is_dir(), reason="shared reference maps not present")
-@pytest.mark.parametrize("domain, folder", [("warehouse_even", "warehouse"),
-                                            ("manufacturing", "manufacturing")])
+@pytest.mark.parametrize(
+    "domain, folder", [("warehouse_even", "warehouse"), ("manufacturing", "manufacturing")]
+)
 def test_human_layouts_validate(domain, folder):
     files = sorted((MAPS / folder).glob("human_*.json"))
     assert len(files) == 7

@@ -25,7 +25,8 @@ memory is the LSTM carry ``(c, h)``, zeros at the start of an episode.
 
 from __future__ import annotations
 
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 import flax.linen as nn
 import jax
@@ -51,17 +52,23 @@ class AgentNet(nn.Module):
         x = jax.nn.one_hot(view, N_VIEW_CLASSES)  # [..., 5, 5, 3]
         v = view.shape[-1]
         k = v - 2  # VALID 3x3 output size
-        patches = jnp.stack([x[..., i:i + 3, j:j + 3, :].reshape(x.shape[:-3] + (9 * N_VIEW_CLASSES,))
-                             for i in range(k) for j in range(k)], axis=-2)  # [..., 9, 27]
+        patches = jnp.stack(
+            [
+                x[..., i : i + 3, j : j + 3, :].reshape(x.shape[:-3] + (9 * N_VIEW_CLASSES,))
+                for i in range(k)
+                for j in range(k)
+            ],
+            axis=-2,
+        )  # [..., 9, 27]
         x = nn.relu(nn.Dense(self.conv_features, name="conv")(patches))
         x = x.reshape(x.shape[:-2] + (k * k * self.conv_features,))
         d = nn.relu(nn.Dense(self.dir_features, name="dir")(jax.nn.one_hot(direction, 4)))
         z = jnp.concatenate([x, d], axis=-1)
         carry, h = nn.OptimizedLSTMCell(self.hidden, name="lstm")(carry, z)
         a = nn.Dense(ma.N_ACTIONS, name="actor_out")(
-            nn.tanh(nn.Dense(self.head_hidden, name="actor_hidden")(h)))
-        c = nn.Dense(1, name="critic_out")(
-            nn.tanh(nn.Dense(self.head_hidden, name="critic_hidden")(h)))
+            nn.tanh(nn.Dense(self.head_hidden, name="actor_hidden")(h))
+        )
+        c = nn.Dense(1, name="critic_out")(nn.tanh(nn.Dense(self.head_hidden, name="critic_hidden")(h)))
         return carry, a, c[..., 0]
 
 

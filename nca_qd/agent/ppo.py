@@ -67,8 +67,7 @@ def gae(reward, value, done, last_value, gamma: float, lam: float):
         adv = delta + gamma * lam * nd * adv
         return (adv, v), adv
 
-    _, adv = jax.lax.scan(body, (jnp.zeros_like(last_value), last_value), (reward, value, done),
-                          reverse=True)
+    _, adv = jax.lax.scan(body, (jnp.zeros_like(last_value), last_value), (reward, value, done), reverse=True)
     return adv, adv + value
 
 
@@ -97,10 +96,10 @@ class Trainer:
         if self.n_envs % int(p.minibatches):
             from nca_qd.errors import NcaQdError
 
-            raise NcaQdError(f"n_envs={self.n_envs} is not divisible by "
-                             f"ppo.minibatches={int(p.minibatches)}")
-        self.tx = optax.chain(optax.clip_by_global_norm(float(p.max_grad_norm)),
-                              optax.adam(float(p.lr), eps=1e-5))
+            raise NcaQdError(f"n_envs={self.n_envs} is not divisible by ppo.minibatches={int(p.minibatches)}")
+        self.tx = optax.chain(
+            optax.clip_by_global_norm(float(p.max_grad_norm)), optax.adam(float(p.lr), eps=1e-5)
+        )
         # compiler_options: XLA options of the update (tests use a low optimisation level to
         # compile faster).
         self.update = jax.jit(self._update, compiler_options=compiler_options)
@@ -146,8 +145,9 @@ class Trainer:
             done = reached | (t1 >= horizon)
             reward = jnp.where(reached, 1.0 - 0.9 * t1 / horizon, 0.0).astype(jnp.float32)
             new_dir = (jax.random.bits(k_d, (n,), jnp.uint32) & 3).astype(jnp.int32)
-            agent_next = ma.AgentState(jnp.where(done[:, None], levels.start, nxt.pos),
-                                       jnp.where(done, new_dir, nxt.dir))
+            agent_next = ma.AgentState(
+                jnp.where(done[:, None], levels.start, nxt.pos), jnp.where(done, new_dir, nxt.dir)
+            )
             out = Transition(view, agent.dir, action, logp, value, reward, done, reached)
             return (agent_next, jnp.where(done, 0, t1), _reset_carry(carry, done)), out
 
@@ -194,37 +194,42 @@ class Trainer:
             def minibatch(c, idx):
                 params, opt_state = c
                 take = lambda x: x[:, idx]  # noqa: E731
-                (total, aux), grads = grad_fn(params, jax.tree.map(take, traj), take(adv),
-                                              take(target))
+                (total, aux), grads = grad_fn(params, jax.tree.map(take, traj), take(adv), take(target))
                 updates, opt_state = self.tx.update(grads, opt_state, params)
                 return (optax.apply_updates(params, updates), opt_state), (total,) + aux
 
             return jax.lax.scan(minibatch, (params, opt_state), perm)
 
-        (params, opt_state), stats = jax.lax.scan(epoch, (params, opt_state),
-                                                  jax.random.split(key, int(p.epochs)))
+        (params, opt_state), stats = jax.lax.scan(
+            epoch, (params, opt_state), jax.random.split(key, int(p.epochs))
+        )
         return params, opt_state, jax.tree.map(jnp.mean, stats)
 
     # --- one update ------------------------------------------------------------------------
     def _update(self, state: TrainState) -> tuple[TrainState, dict[str, jax.Array]]:
         key, k_lvl, k_roll, k_ppo = jax.random.split(state.key, 4)
-        levels, src, kind = choose_levels(k_lvl, state.buffer, state.update, self.n_envs,
-                                          self.interior, self.cfg.levels)
+        levels, src, kind = choose_levels(
+            k_lvl, state.buffer, state.update, self.n_envs, self.interior, self.cfg.levels
+        )
         traj, last_value = self.rollout(state.params, levels, k_roll)
         p = self.cfg.ppo
-        adv, target = gae(traj.reward, traj.value, traj.done, last_value, float(p.gamma),
-                          float(p.gae_lambda))
-        params, opt_state, (total, pg, vf, ent) = self._ppo(state.params, state.opt_state, traj,
-                                                            adv, target, k_ppo)
+        adv, target = gae(traj.reward, traj.value, traj.done, last_value, float(p.gamma), float(p.gae_lambda))
+        params, opt_state, (total, pg, vf, ent) = self._ppo(
+            state.params, state.opt_state, traj, adv, target, k_ppo
+        )
         scores = level_scores(adv, traj.done)
         buffer = buffer_update(state.buffer, levels, src, scores, state.update)
         episodes = jnp.sum(traj.done)
         metrics = {
-            "loss": total, "policy_loss": pg, "value_loss": vf, "entropy": ent,
+            "loss": total,
+            "policy_loss": pg,
+            "value_loss": vf,
+            "entropy": ent,
             "episodes": episodes,
             "mean_return": jnp.sum(traj.reward) / jnp.maximum(episodes, 1),
             "train_success": jnp.sum(traj.reached) / jnp.maximum(episodes, 1),
-            "replayed": jnp.mean(kind == 0), "edited": jnp.mean(kind == 1),
+            "replayed": jnp.mean(kind == 0),
+            "edited": jnp.mean(kind == 1),
             "nca": jnp.mean(kind == 3),
             "buffer_size": jnp.sum(buffer.valid),
             "buffer_score": jnp.sum(jnp.where(buffer.valid, buffer.score, 0.0))
@@ -242,8 +247,7 @@ def make_heldout_eval(net: AgentNet, levels: Levels, episodes: int, horizon: int
     def evaluate(params, key):
         policy = learned_policy(net, params)
         keys = jax.random.split(key, levels.layout.shape[0])
-        res = ma.rollout_batch(policy, levels.layout, levels.start, levels.goal, keys, episodes,
-                               horizon)
+        res = ma.rollout_batch(policy, levels.layout, levels.start, levels.goal, keys, episodes, horizon)
         return res.reached, res.lengths
 
     return evaluate

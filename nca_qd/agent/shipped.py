@@ -38,8 +38,10 @@ def load_agent(directory: str | Path | None = None) -> tuple[AgentNet, Any, dict
     d = Path(directory) if directory is not None else weights_dir()
     w, m = d / WEIGHTS_FILE, d / META_FILE
     if not w.is_file() or not m.is_file():
-        raise NcaQdError(f"learned maze agent not found in {d} ({WEIGHTS_FILE} and {META_FILE}); "
-                         "train one with python -m experiments.train_agent ship=true")
+        raise NcaQdError(
+            f"learned maze agent not found in {d} ({WEIGHTS_FILE} and {META_FILE}); "
+            "train one with python -m experiments.train_agent ship=true"
+        )
     meta = json.loads(m.read_text())
     net = make_net(meta["network"])
     # The expected structure from an abstract trace (no compilation, unlike a real init).
@@ -47,14 +49,17 @@ def load_agent(directory: str | Path | None = None) -> tuple[AgentNet, Any, dict
     try:
         raw = serialization.msgpack_restore(w.read_bytes())
         params = serialization.from_state_dict(template, raw)
-        bad = [path for (path, t), p in zip(jax.tree_util.tree_leaves_with_path(template),
-                                            jax.tree.leaves(params))
-               if tuple(t.shape) != tuple(np.shape(p))]
+        bad = [
+            path
+            for (path, t), p in zip(jax.tree_util.tree_leaves_with_path(template), jax.tree.leaves(params))
+            if tuple(t.shape) != tuple(np.shape(p))
+        ]
     except (ValueError, KeyError, TypeError) as exc:
         raise NcaQdError(f"{w}: weights do not match the network in {m} ({exc})") from None
     if bad:
-        raise NcaQdError(f"{w}: weights do not match the network in {m} "
-                         f"(shape of {jax.tree_util.keystr(bad[0])})")
+        raise NcaQdError(
+            f"{w}: weights do not match the network in {m} (shape of {jax.tree_util.keystr(bad[0])})"
+        )
     params = jax.tree.map(lambda a, t: jnp.asarray(a, t.dtype), params, template)
     return net, params, meta
 

@@ -35,10 +35,27 @@ log = logging.getLogger("nca_qd.agent")
 
 CONFIG_FILE, METRICS_FILE = "config.yaml", "metrics.csv"
 CHECKPOINT_FILE, BEST_FILE = "checkpoint.msgpack", "best.msgpack"
-COLUMNS = ["update", "env_steps", "wall_seconds", "steps_per_second", "mean_return",
-           "train_success", "episodes", "loss", "policy_loss", "value_loss", "entropy",
-           "replayed", "edited", "nca", "buffer_size", "buffer_score", "level_score",
-           "heldout_success", "heldout_length"]
+COLUMNS = [
+    "update",
+    "env_steps",
+    "wall_seconds",
+    "steps_per_second",
+    "mean_return",
+    "train_success",
+    "episodes",
+    "loss",
+    "policy_loss",
+    "value_loss",
+    "entropy",
+    "replayed",
+    "edited",
+    "nca",
+    "buffer_size",
+    "buffer_score",
+    "level_score",
+    "heldout_success",
+    "heldout_length",
+]
 
 
 def validate(cfg: DictConfig) -> None:
@@ -51,20 +68,34 @@ def validate(cfg: DictConfig) -> None:
             ok = (v > low if strict else v >= low) and (high is None or v <= high)
         if not ok:
             rng = f"> {low}" if strict else f">= {low}"
-            raise NcaQdError(f"{path} must be a{'n integer' if kind is int else ' number'} "
-                             f"{rng}{'' if high is None else f' and <= {high}'}, got {v!r}")
+            raise NcaQdError(
+                f"{path} must be a{'n integer' if kind is int else ' number'} "
+                f"{rng}{'' if high is None else f' and <= {high}'}, got {v!r}"
+            )
 
-    for p in ("total_env_steps", "n_envs", "horizon", "network.hidden", "network.conv_features",
-              "network.dir_features", "network.head_hidden", "ppo.epochs", "ppo.minibatches",
-              "levels.buffer_size", "levels.max_edits", "levels.tries", "heldout.episodes",
-              "heldout.every_updates", "checkpoint_every"):
+    for p in (
+        "total_env_steps",
+        "n_envs",
+        "horizon",
+        "network.hidden",
+        "network.conv_features",
+        "network.dir_features",
+        "network.head_hidden",
+        "ppo.epochs",
+        "ppo.minibatches",
+        "levels.buffer_size",
+        "levels.max_edits",
+        "levels.tries",
+        "heldout.episodes",
+        "heldout.every_updates",
+        "checkpoint_every",
+    ):
         number(p)
     number("heldout.n_random", low=0, strict=False)
     number("levels.min_fill", low=0, strict=False)
     for p in ("ppo.lr", "ppo.clip", "ppo.max_grad_norm", "levels.temperature"):
         number(p, float)
-    for p in ("ppo.gamma", "ppo.gae_lambda", "levels.replay_prob", "levels.edit_prob",
-              "levels.staleness"):
+    for p in ("ppo.gamma", "ppo.gae_lambda", "levels.replay_prob", "levels.edit_prob", "levels.staleness"):
         number(p, float, 0.0, 1.0, strict=False)
     for p in ("ppo.vf_coef", "ppo.ent_coef"):
         number(p, float, 0.0, strict=False)
@@ -76,28 +107,38 @@ def validate(cfg: DictConfig) -> None:
         inter = OmegaConf.select(cfg, name)
         if name == "heldout.interior" and inter is None:
             continue
-        if (inter is None or len(inter) != 2 or not all(
-                isinstance(v, int) and not isinstance(v, bool) and v >= 2 for v in inter)):
+        if (
+            inter is None
+            or len(inter) != 2
+            or not all(isinstance(v, int) and not isinstance(v, bool) and v >= 2 for v in inter)
+        ):
             raise NcaQdError(f"{name} must be two integers >= 2, got {inter!r}")
     if cfg.levels.method not in ("accel", "dr"):
         raise NcaQdError(f"levels.method must be accel or dr, got {cfg.levels.method!r}")
     for p in ("levels.density", "heldout.density"):
         d = OmegaConf.select(cfg, p)
-        if (d is None or len(d) != 2 or not all(isinstance(v, (int, float)) for v in d)
-                or not 0 <= d[0] <= d[1] <= 1):
+        if (
+            d is None
+            or len(d) != 2
+            or not all(isinstance(v, (int, float)) for v in d)
+            or not 0 <= d[0] <= d[1] <= 1
+        ):
             raise NcaQdError(f"{p} must be [low, high] with 0 <= low <= high <= 1, got {d!r}")
     if OmegaConf.select(cfg, "levels.nca_prob") is not None:  # runs from before NCA levels lack it
         number("levels.nca_prob", float, 0.0, 1.0, strict=False)
         number("levels.nca_iters")
         sig = cfg.levels.nca_sigma
-        if (sig is None or len(sig) != 2 or not all(isinstance(v, (int, float)) for v in sig)
-                or not 0 <= sig[0] <= sig[1]):
+        if (
+            sig is None
+            or len(sig) != 2
+            or not all(isinstance(v, (int, float)) for v in sig)
+            or not 0 <= sig[0] <= sig[1]
+        ):
             raise NcaQdError(f"levels.nca_sigma must be [low, high] with 0 <= low <= high, got {sig!r}")
     if OmegaConf.select(cfg, "levels.min_interior") is not None:
         number("levels.min_interior", low=2, strict=False)
     if cfg.n_envs % cfg.ppo.minibatches:
-        raise NcaQdError(f"n_envs={cfg.n_envs} is not divisible by ppo.minibatches="
-                         f"{cfg.ppo.minibatches}")
+        raise NcaQdError(f"n_envs={cfg.n_envs} is not divisible by ppo.minibatches={cfg.ppo.minibatches}")
 
 
 def heldout_interior(cfg: DictConfig) -> tuple[int, int]:
@@ -116,8 +157,11 @@ def heldout_levels(cfg: DictConfig) -> tuple[Levels, list[str]]:
     names = [f"random_{i}" for i in range(int(hd.n_random))]
     parts = []
     if int(hd.n_random) > 0:
-        parts.append(random_levels(jax.random.PRNGKey(int(hd.seed)), int(hd.n_random), (h, w),
-                                   tuple(hd.density), tries=8))
+        parts.append(
+            random_levels(
+                jax.random.PRNGKey(int(hd.seed)), int(hd.n_random), (h, w), tuple(hd.density), tries=8
+            )
+        )
     if hd.paper_map:
         path = reference_maps_dir() / str(hd.paper_map)
         if path.is_file():
@@ -171,14 +215,16 @@ class AgentRun:
         self.levels, self.level_names = heldout_levels(cfg)
         hh, hw = heldout_interior(cfg)
         self.eval_horizon = 2 * (hh + 2) * (hw + 2)
-        self.evaluate = make_heldout_eval(self.net, self.levels, int(cfg.heldout.episodes),
-                                          self.eval_horizon)
+        self.evaluate = make_heldout_eval(self.net, self.levels, int(cfg.heldout.episodes), self.eval_horizon)
 
     # --- disk -------------------------------------------------------------------------------
     def _template(self) -> dict[str, Any]:
-        return {"state": self.trainer.init(jax.random.PRNGKey(int(self.cfg.seed))),
-                "wall_seconds": np.float64(0), "best_success": np.float64(-1),
-                "best_update": np.int64(0)}
+        return {
+            "state": self.trainer.init(jax.random.PRNGKey(int(self.cfg.seed))),
+            "wall_seconds": np.float64(0),
+            "best_success": np.float64(-1),
+            "best_update": np.int64(0),
+        }
 
     def save(self, tree: dict[str, Any], rows: list[dict[str, Any]]) -> None:
         self.run_dir.mkdir(parents=True, exist_ok=True)
@@ -226,8 +272,7 @@ class AgentRun:
             tree, rows = self._template(), []
             if cfg.get("init_from"):
                 params = load_pytree(resolve_params_file(cfg.init_from), tree["state"].params)
-                tree["state"] = tree["state"]._replace(params=params,
-                                                       opt_state=self.trainer.tx.init(params))
+                tree["state"] = tree["state"]._replace(params=params, opt_state=self.trainer.tx.init(params))
                 log.info("parameters initialised from %s", cfg.init_from)
         state: TrainState = tree["state"]
         spu = tr.steps_per_update
@@ -236,12 +281,24 @@ class AgentRun:
         if resume and done >= n_updates:
             log.info("nothing to train: %d of %d updates done", done, n_updates)
             return tree
-        log.info("maze agent: %d parameters, %d envs x %d steps per update, %d of %d updates done",
-                 n_params(state.params), tr.n_envs, tr.horizon, done, n_updates)
+        log.info(
+            "maze agent: %d parameters, %d envs x %d steps per update, %d of %d updates done",
+            n_params(state.params),
+            tr.n_envs,
+            tr.horizon,
+            done,
+            n_updates,
+        )
         t_session = time.perf_counter()
         wall0 = float(tree["wall_seconds"])
-        bar = tqdm(total=n_updates * spu, initial=done * spu, unit="step", unit_scale=True,
-                   disable=not cfg.progress, dynamic_ncols=True)
+        bar = tqdm(
+            total=n_updates * spu,
+            initial=done * spu,
+            unit="step",
+            unit_scale=True,
+            disable=not cfg.progress,
+            dynamic_ncols=True,
+        )
         last_ckpt = done
         try:
             while int(state.update) < n_updates:
@@ -253,9 +310,14 @@ class AgentRun:
                 m = jax.device_get(m)
                 dt = time.perf_counter() - t0
                 u = int(state.update)
-                row = {"update": u, "env_steps": u * spu, "steps_per_second": round(spu / dt, 1),
-                       **{k: round(float(v), 6) for k, v in m.items()},
-                       "heldout_success": "", "heldout_length": ""}
+                row = {
+                    "update": u,
+                    "env_steps": u * spu,
+                    "steps_per_second": round(spu / dt, 1),
+                    **{k: round(float(v), 6) for k, v in m.items()},
+                    "heldout_success": "",
+                    "heldout_length": "",
+                }
                 if u % int(cfg.heldout.every_updates) == 0 or u == n_updates:
                     succ, length = self.heldout(state.params, u)
                     row["heldout_success"], row["heldout_length"] = round(succ, 4), round(length, 2)
@@ -263,8 +325,15 @@ class AgentRun:
                         tree["best_success"], tree["best_update"] = np.float64(succ), np.int64(u)
                         save_pytree(self.run_dir / BEST_FILE, state.params)
                     bar.set_postfix(heldout=f"{succ:.2f}", refresh=False)
-                    log.info("update %d: env steps %d, held-out success %.3f (mean length %.1f), "
-                             "train success %.3f", u, u * spu, succ, length, m["train_success"])
+                    log.info(
+                        "update %d: env steps %d, held-out success %.3f (mean length %.1f), "
+                        "train success %.3f",
+                        u,
+                        u * spu,
+                        succ,
+                        length,
+                        m["train_success"],
+                    )
                 row["wall_seconds"] = round(wall0 + time.perf_counter() - t_session, 1)
                 rows.append(row)
                 bar.update(spu)
@@ -293,8 +362,11 @@ class AgentRun:
                 rows = list(csv.DictReader(fh))
         best_u = int(tree["best_update"])
         at_best = next((r for r in rows if int(r["update"]) == best_u), None)
-        curve = [{"env_steps": int(r["env_steps"]), "heldout_success": float(r["heldout_success"])}
-                 for r in rows if r.get("heldout_success") not in (None, "")]
+        curve = [
+            {"env_steps": int(r["env_steps"]), "heldout_success": float(r["heldout_success"])}
+            for r in rows
+            if r.get("heldout_success") not in (None, "")
+        ]
         sps = [float(r["steps_per_second"]) for r in rows if r.get("steps_per_second")]
         meta = {
             "network": OmegaConf.to_container(self.cfg.network),
@@ -310,9 +382,13 @@ class AgentRun:
             "wall_seconds_run": float(tree["wall_seconds"]),
             "median_steps_per_second": float(np.median(sps)) if sps else None,
             "heldout_success": float(tree["best_success"]),
-            "heldout": {"mazes": len(self.level_names), "names": self.level_names[-1:],
-                        "episodes": int(self.cfg.heldout.episodes), "horizon": self.eval_horizon},
+            "heldout": {
+                "mazes": len(self.level_names),
+                "names": self.level_names[-1:],
+                "episodes": int(self.cfg.heldout.episodes),
+                "horizon": self.eval_horizon,
+            },
             "heldout_curve": curve,
-            "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+            "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         }
         return save_agent(self.best_params(), meta, directory)

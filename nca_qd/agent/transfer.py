@@ -18,8 +18,9 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -76,34 +77,67 @@ def case_horizon(shape: tuple[int, int], cfg: Mapping[str, Any]) -> int:
     return min(horizon, int(cap)) if cap else horizon
 
 
-def single_case(case: str, layout: np.ndarray, cfg: Mapping[str, Any], key: jax.Array,
-                out: Path | None) -> dict[str, Any]:
+def single_case(
+    case: str, layout: np.ndarray, cfg: Mapping[str, Any], key: jax.Array, out: Path | None
+) -> dict[str, Any]:
     """Success rate of the agent on one bordered maze (and its PNG)."""
     start, goal, length = solve_start_goal(layout)
     episodes = int(cfg["episodes"])
     horizon = case_horizon(layout.shape, cfg)
-    res = {"case": case, "episodes": episodes, "success_rate": 0.0, "stderr": 0.0,
-           "agent": str(cfg["agent"]), "size": size_name(layout),
-           "walls": int((layout[1:-1, 1:-1] == ma.WALL).sum()), "path_length": length,
-           "horizon": horizon}
+    res = {
+        "case": case,
+        "episodes": episodes,
+        "success_rate": 0.0,
+        "stderr": 0.0,
+        "agent": str(cfg["agent"]),
+        "size": size_name(layout),
+        "walls": int((layout[1:-1, 1:-1] == ma.WALL).sum()),
+        "path_length": length,
+        "horizon": horizon,
+    }
     if length == 0:
         log.warning("%s: the maze has no start-goal path; success 0 without simulation", case)
         res["note"] = "unsolvable maze"
         return res
-    run = run_agent(layout, start, goal, key, kind=str(cfg["agent"]), episodes=episodes,
-                    horizon=horizon, record_path=out is not None and cfg.get("pictures", True))
+    run = run_agent(
+        layout,
+        start,
+        goal,
+        key,
+        kind=str(cfg["agent"]),
+        episodes=episodes,
+        horizon=horizon,
+        record_path=out is not None and cfg.get("pictures", True),
+    )
     p = float(np.mean(run.reached))
-    res.update(success_rate=p, stderr=math.sqrt(p * (1 - p) / episodes),
-               mean_episode_length=float(np.mean(run.lengths)))
+    res.update(
+        success_rate=p,
+        stderr=math.sqrt(p * (1 - p) / episodes),
+        mean_episode_length=float(np.mean(run.lengths)),
+    )
     if run.path is not None:
-        draw_path(out / f"{case}.png", layout, start, goal, run.path,
-                  f"{case}: success {p:.2f} ({episodes} episodes), path {length}")
+        draw_path(
+            out / f"{case}.png",
+            layout,
+            start,
+            goal,
+            run.path,
+            f"{case}: success {p:.2f} ({episodes} episodes), path {length}",
+        )
     return res
 
 
-def sample_baseline(rng: np.random.Generator, interior_shape: tuple[int, int], n_walls: int,
-                    target: int, ratio: tuple[float, float], n: int, batch: int, max_tries: int,
-                    progress: bool = False) -> tuple[list[tuple[np.ndarray, np.ndarray, np.ndarray, int]], int]:
+def sample_baseline(
+    rng: np.random.Generator,
+    interior_shape: tuple[int, int],
+    n_walls: int,
+    target: int,
+    ratio: tuple[float, float],
+    n: int,
+    batch: int,
+    max_tries: int,
+    progress: bool = False,
+) -> tuple[list[tuple[np.ndarray, np.ndarray, np.ndarray, int]], int]:
     """Rejection sampling of ``n`` random bordered mazes: exactly ``n_walls`` walls placed
     uniformly at random in the interior, longest shortest path in ``[ratio[0], ratio[1]] x target``.
     Returns ``(mazes, tries)``; at most ``max_tries`` candidates, solved ``batch`` at a time."""
@@ -140,8 +174,10 @@ def load_baseline_cache(path, setting: dict[str, Any]):
         if json.loads(str(data["setting"])) != setting:
             log.info("baseline cache %s is for another setting: sampling again", path)
             return None
-        mazes = [(data["layouts"][i], data["starts"][i], data["goals"][i], int(data["lengths"][i]))
-                 for i in range(data["layouts"].shape[0])]
+        mazes = [
+            (data["layouts"][i], data["starts"][i], data["goals"][i], int(data["lengths"][i]))
+            for i in range(data["layouts"].shape[0])
+        ]
         return mazes, int(data["tries"])
 
 
@@ -154,65 +190,121 @@ def save_baseline_cache(path, setting: dict[str, Any], mazes, tries: int) -> Non
 
     if not path or not mazes:
         return
-    save_npz(path, {"setting": np.array(json.dumps(setting, sort_keys=True)),
-                    "layouts": np.stack([m[0] for m in mazes]),
-                    "starts": np.stack([m[1] for m in mazes]),
-                    "goals": np.stack([m[2] for m in mazes]),
-                    "lengths": np.array([m[3] for m in mazes]), "tries": np.array(tries)})
+    save_npz(
+        path,
+        {
+            "setting": np.array(json.dumps(setting, sort_keys=True)),
+            "layouts": np.stack([m[0] for m in mazes]),
+            "starts": np.stack([m[1] for m in mazes]),
+            "goals": np.stack([m[2] for m in mazes]),
+            "lengths": np.array([m[3] for m in mazes]),
+            "tries": np.array(tries),
+        },
+    )
 
 
-def baseline_case(case: str, reference: np.ndarray, cfg: Mapping[str, Any], key: jax.Array,
-                  rng: np.random.Generator, out: Path | None) -> dict[str, Any]:
+def baseline_case(
+    case: str,
+    reference: np.ndarray,
+    cfg: Mapping[str, Any],
+    key: jax.Array,
+    rng: np.random.Generator,
+    out: Path | None,
+) -> dict[str, Any]:
     """Mean success over random mazes like ``reference`` (bordered), see :func:`sample_baseline`."""
     bc = cfg["baseline"]
     _, _, target = solve_start_goal(reference)
     n_walls = int((reference[1:-1, 1:-1] == ma.WALL).sum())
     ratio = tuple(float(v) for v in bc["path_ratio"])
-    setting = {"seed": int(cfg["seed"]), "n_walls": n_walls, "target": int(target),
-               "ratio": list(ratio), "n_mazes": int(bc["n_mazes"]), "batch": int(bc["batch"]),
-               "max_tries": int(bc["max_tries"]), "shape": list(reference.shape)}
+    setting = {
+        "seed": int(cfg["seed"]),
+        "n_walls": n_walls,
+        "target": int(target),
+        "ratio": list(ratio),
+        "n_mazes": int(bc["n_mazes"]),
+        "batch": int(bc["batch"]),
+        "max_tries": int(bc["max_tries"]),
+        "shape": list(reference.shape),
+    }
     cached = load_baseline_cache(bc.get("cache"), setting)
     if cached is not None:
         mazes, tries = cached
     else:
-        mazes, tries = sample_baseline(rng, (reference.shape[0] - 2, reference.shape[1] - 2),
-                                       n_walls, target, ratio, int(bc["n_mazes"]),
-                                       int(bc["batch"]), int(bc["max_tries"]),
-                                       bool(cfg.get("progress", False)))
+        mazes, tries = sample_baseline(
+            rng,
+            (reference.shape[0] - 2, reference.shape[1] - 2),
+            n_walls,
+            target,
+            ratio,
+            int(bc["n_mazes"]),
+            int(bc["batch"]),
+            int(bc["max_tries"]),
+            bool(cfg.get("progress", False)),
+        )
         save_baseline_cache(bc.get("cache"), setting, mazes, tries)
     episodes = int(bc["episodes"])
-    res = {"case": case, "episodes": episodes * len(mazes), "success_rate": 0.0, "stderr": 0.0,
-           "agent": str(cfg["agent"]), "size": size_name(reference), "mazes": len(mazes),
-           "episodes_per_maze": episodes, "walls": n_walls, "reference_path_length": target,
-           "path_ratio": list(ratio), "candidates_drawn": tries}
+    res = {
+        "case": case,
+        "episodes": episodes * len(mazes),
+        "success_rate": 0.0,
+        "stderr": 0.0,
+        "agent": str(cfg["agent"]),
+        "size": size_name(reference),
+        "mazes": len(mazes),
+        "episodes_per_maze": episodes,
+        "walls": n_walls,
+        "reference_path_length": target,
+        "path_ratio": list(ratio),
+        "candidates_drawn": tries,
+    }
     if len(mazes) < int(bc["n_mazes"]):
-        log.warning("%s: only %d of %d mazes found in %d candidates", case, len(mazes),
-                    int(bc["n_mazes"]), tries)
+        log.warning(
+            "%s: only %d of %d mazes found in %d candidates", case, len(mazes), int(bc["n_mazes"]), tries
+        )
     if not mazes:
         res["note"] = "no baseline maze found"
         return res
     horizon = case_horizon(reference.shape, cfg)
     keys = jax.random.split(key, len(mazes))
     # One maze at a time through run_agent (same compiled rollout as the single-maze cases).
-    runs = [run_agent(lay, s, g, keys[i], kind=str(cfg["agent"]), episodes=episodes,
-                      horizon=horizon) for i, (lay, s, g, _) in enumerate(mazes)]
+    runs = [
+        run_agent(lay, s, g, keys[i], kind=str(cfg["agent"]), episodes=episodes, horizon=horizon)
+        for i, (lay, s, g, _) in enumerate(mazes)
+    ]
     per_maze = np.array([r.reached.mean() for r in runs])
     se = float(per_maze.std(ddof=1) / math.sqrt(len(per_maze))) if len(per_maze) > 1 else 0.0
-    res.update(success_rate=float(per_maze.mean()), stderr=se, horizon=horizon,
-               path_length_mean=float(np.mean([m[3] for m in mazes])),
-               mean_episode_length=float(np.mean([r.lengths.mean() for r in runs])))
+    res.update(
+        success_rate=float(per_maze.mean()),
+        stderr=se,
+        horizon=horizon,
+        path_length_mean=float(np.mean([m[3] for m in mazes])),
+        mean_episode_length=float(np.mean([r.lengths.mean() for r in runs])),
+    )
     if out is not None and cfg.get("pictures", True):
         for i in range(min(int(bc["pictures"]), len(mazes))):
             lay, s, g, length = mazes[i]
-            run = run_agent(lay, s, g, keys[i], kind=str(cfg["agent"]), episodes=episodes,
-                            horizon=horizon, record_path=True)
-            draw_path(out / f"{case}_{i}.png", lay, s, g, run.path,
-                      f"{case} #{i}: success {per_maze[i]:.2f}, path {length}")
+            run = run_agent(
+                lay,
+                s,
+                g,
+                keys[i],
+                kind=str(cfg["agent"]),
+                episodes=episodes,
+                horizon=horizon,
+                record_path=True,
+            )
+            draw_path(
+                out / f"{case}_{i}.png",
+                lay,
+                s,
+                g,
+                run.path,
+                f"{case} #{i}: success {per_maze[i]:.2f}, path {length}",
+            )
     return res
 
 
-def longest_path_elite(domain, gen, archive: Mapping[str, np.ndarray],
-                       chunk: int = 1024) -> int | None:
+def longest_path_elite(domain, gen, archive: Mapping[str, np.ndarray], chunk: int = 1024) -> int | None:
     """Among the elites of the best objective (the maze's is binary: solvable), the one whose
     maze at the training size has the longest start-goal shortest path (ties: more walls) -- an
     intricate maze, the kind the paper shows, chosen without the agent. (The archive's first best
@@ -227,8 +319,9 @@ def longest_path_elite(domain, gen, archive: Mapping[str, np.ndarray],
     top = occ[objective[occ] == objective[occ].max()]
     length, walls = [], []
     for i in range(0, top.size, chunk):  # a full maze archive holds ~10^4 best elites
-        mazes = np.asarray(domain.assemble(
-            generate(domain, gen, archive["genotypes"][top[i:i + chunk]], "train")))
+        mazes = np.asarray(
+            domain.assemble(generate(domain, gen, archive["genotypes"][top[i : i + chunk]], "train"))
+        )
         length.append(np.asarray(longest_shortest_path(jnp.asarray(mazes == ma.EMPTY))[0]))
         walls.append((mazes == ma.WALL).sum(axis=(1, 2)))
     return int(top[np.lexsort((-np.concatenate(walls), -np.concatenate(length)))[0]])
@@ -254,8 +347,10 @@ def own_nca_layouts(run_dir: str | Path, elite: int | None) -> tuple[dict[str, n
         cell = int(elite)
         if not (0 <= cell < archive["objective"].size) or not np.isfinite(archive["objective"][cell]):
             raise NcaQdError(f"{run_dir}: no elite in cell {cell}")
-    out = {which: np.asarray(domain.assemble(generate(domain, gen, archive["genotypes"][[cell]], which)[0]))
-           for which in ("train", "eval")}
+    out = {
+        which: np.asarray(domain.assemble(generate(domain, gen, archive["genotypes"][[cell]], which)[0]))
+        for which in ("train", "eval")
+    }
     return out, cell
 
 
@@ -294,6 +389,9 @@ def run_transfer(cfg: Mapping[str, Any], out: Path | None, emit=None) -> list[di
     elif str(cfg["baseline"]["reference"]) != "paper":
         raise NcaQdError(f"baseline.reference must be paper or own, got {cfg['baseline']['reference']!r}")
     if int(cfg["baseline"]["n_mazes"]) > 0:
-        done(baseline_case(f"baseline_{size_name(reference)}", reference, cfg,
-                           jax.random.fold_in(key, 4), rng, out))
+        done(
+            baseline_case(
+                f"baseline_{size_name(reference)}", reference, cfg, jax.random.fold_in(key, 4), rng, out
+            )
+        )
     return results

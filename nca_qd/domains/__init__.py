@@ -10,7 +10,8 @@ another kind is a new module here plus one line in :data:`DOMAINS` (see CONTRIBU
 from __future__ import annotations
 
 import importlib
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 from nca_qd.domains.base import Domain, EvalBatch, Evaluator
 from nca_qd.errors import NcaQdError

@@ -15,7 +15,8 @@ adds fixed-only tiles (the warehouse's workstation ``w``).
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from typing import Any, Callable, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 

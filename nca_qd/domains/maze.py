@@ -21,8 +21,9 @@ the alphabet ``" X"`` (0 = empty, 1 = wall); :meth:`MazeDomain.assemble` surroun
 
 from __future__ import annotations
 
-from functools import lru_cache, partial
-from typing import Any, Mapping, NamedTuple
+from collections.abc import Mapping
+from functools import cache, partial
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -85,8 +86,13 @@ def longest_shortest_path(free: jax.Array) -> tuple[jax.Array, jax.Array, jax.Ar
         length = jnp.where(changed, t + 1, length)
         return new, last, t + 1, length, jnp.any(changed)
 
-    init = (reach0, jnp.zeros_like(reach0), jnp.array(0, jnp.int32), jnp.zeros((nb_,), jnp.int32),
-            jnp.array(True))
+    init = (
+        reach0,
+        jnp.zeros_like(reach0),
+        jnp.array(0, jnp.int32),
+        jnp.zeros((nb_,), jnp.int32),
+        jnp.array(True),
+    )
     _, last, _, length, _ = jax.lax.while_loop(lambda c: c[4], body, init)
 
     def ends(last, length, free):
@@ -137,7 +143,7 @@ class AgentRun(NamedTuple):
     dirs: np.ndarray | None  # [T + 1] directions of episode 0, if recorded
 
 
-@lru_cache(maxsize=None)
+@cache
 def _run_fn(kind: str, episodes: int, horizon: int, record: bool):
     policy = maze_agent.get_policy(kind)
     if record:
@@ -145,8 +151,16 @@ def _run_fn(kind: str, episodes: int, horizon: int, record: bool):
     return jax.jit(partial(maze_agent.rollout, policy, episodes=episodes, horizon=horizon))
 
 
-def run_agent(layout, start, goal, key, kind: str = DEFAULT_AGENT["kind"], episodes: int = 50,
-              horizon: int | None = None, record_path: bool = False) -> AgentRun:
+def run_agent(
+    layout,
+    start,
+    goal,
+    key,
+    kind: str = DEFAULT_AGENT["kind"],
+    episodes: int = 50,
+    horizon: int | None = None,
+    record_path: bool = False,
+) -> AgentRun:
     """Run ``episodes`` episodes of agent ``kind`` on one bordered layout ``[H, W]`` (any size).
 
     Same key derivation as the evaluator: maze ``i`` of an evaluator call with ``key`` equals
@@ -230,8 +244,7 @@ class MazeDomain(Domain):
             goal = jnp.where(goal >= 0, goal + 1, goal)
             solvable = length > 0
             keys = jax.random.split(key, b)
-            res = maze_agent.rollout_batch(policy, layouts, start, goal, keys, episodes, horizon,
-                                           solvable)
+            res = maze_agent.rollout_batch(policy, layouts, start, goal, keys, episodes, horizon, solvable)
             path_length = jnp.mean(res.lengths.astype(jnp.float32), axis=1)
             values = {
                 "n_walls": tile_count(regions, WALL),
@@ -240,9 +253,12 @@ class MazeDomain(Domain):
             }
             measures = jnp.stack([values[m] for m in names], axis=1).astype(jnp.float32)
             extras = {
-                "start": start, "goal": goal, "path_length": path_length,
+                "start": start,
+                "goal": goal,
+                "path_length": path_length,
                 "success_rate": jnp.mean(res.reached.astype(jnp.float32), axis=1),
-                "longest_shortest_path": length, "episode_lengths": res.lengths,
+                "longest_shortest_path": length,
+                "episode_lengths": res.lengths,
             }
             return solvable.astype(jnp.float32), measures, extras
 

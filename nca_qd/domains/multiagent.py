@@ -8,7 +8,8 @@ RHCR (:class:`nca_qd.scoring.mapf.MapfScorer`).
 
 from __future__ import annotations
 
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 
@@ -28,13 +29,20 @@ class MultiAgentDomain(Domain):
         self.palette = self.layout.palette
 
     @classmethod
-    def for_layout(cls, name: str) -> type["MultiAgentDomain"]:
+    def for_layout(cls, name: str) -> type[MultiAgentDomain]:
         """A subclass whose class attributes (tiles, palette) are those of layout ``name``, for
         readers that need them without a config (``domain_class``)."""
         kind = get_layout(name, "domain")
-        return type(f"MultiAgentDomain[{name}]", (cls,),
-                    {"name": kind.name, "gen_tiles": kind.gen_tiles, "layout_tiles": kind.tiles,
-                     "palette": kind.palette})
+        return type(
+            f"MultiAgentDomain[{name}]",
+            (cls,),
+            {
+                "name": kind.name,
+                "gen_tiles": kind.gen_tiles,
+                "layout_tiles": kind.tiles,
+                "palette": kind.palette,
+            },
+        )
 
     def seed(self, shape: tuple[int, int]) -> np.ndarray:
         return self.layout.seed(shape)

@@ -32,5 +32,4 @@ def get_layout(name: str, what: str = "layout") -> LayoutKind:
     return LAYOUTS[name]
 
 
-__all__ = ["LAYOUTS", "Construction", "GoalKind", "LayoutKind", "TaskModel", "get_layout",
-           "layout_names"]
+__all__ = ["LAYOUTS", "Construction", "GoalKind", "LayoutKind", "TaskModel", "get_layout", "layout_names"]

@@ -10,8 +10,8 @@ the measures, and evaluation defaults. The stages read it by name through the re
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Mapping
 
 import numpy as np
 
@@ -64,16 +64,16 @@ class LayoutKind:
     """Facts of one multi-agent layout family; subclasses set the attributes and methods."""
 
     name: str
-    family: str               # subdirectory of the reference maps (warehouse, manufacturing)
-    tiles: str                # alphabet of the full layout
-    gen_tiles: str            # alphabet of the generated region (a prefix of ``tiles``)
+    family: str  # subdirectory of the reference maps (warehouse, manufacturing)
+    tiles: str  # alphabet of the full layout
+    gen_tiles: str  # alphabet of the generated region (a prefix of ``tiles``)
     palette: Mapping[str, str]
     task: TaskModel
     construction: Construction
     seed_block: tuple[str, ...]
     seed_offsets: Mapping[tuple[int, int], tuple[int, int]]  # region shape -> block offset
-    eval_agent_step: int      # agent-count step of the S_eval throughput sweep (the paper's)
-    frame_cols: int = 0       # fixed columns on each side of the generated region
+    eval_agent_step: int  # agent-count step of the S_eval throughput sweep (the paper's)
+    frame_cols: int = 0  # fixed columns on each side of the generated region
 
     # --- shapes and frame ------------------------------------------------------------------
     def full_shape(self, region_shape: tuple[int, int]) -> tuple[int, int]:
@@ -101,7 +101,7 @@ class LayoutKind:
         layout = np.asarray(layout)
         if not self.frame_cols:
             return layout
-        return layout[..., :, self.frame_cols:-self.frame_cols]
+        return layout[..., :, self.frame_cols : -self.frame_cols]
 
     def check_frame(self, layout: np.ndarray, source: str) -> None:
         """Raise :class:`NcaQdError` naming ``source`` if the fixed frame is not as required."""
@@ -122,8 +122,7 @@ class LayoutKind:
         return out
 
     # --- repair and measures ---------------------------------------------------------------
-    def rules(self, shape: tuple[int, int], *, n_shelves: int | None = None,
-              n_agents: int = 200) -> Rules:
+    def rules(self, shape: tuple[int, int], *, n_shelves: int | None = None, n_agents: int = 200) -> Rules:
         """Validity of a full map of ``shape`` (the repair's constraints)."""
         raise NotImplementedError
 

@@ -35,8 +35,7 @@ def rules(shape: tuple[int, int], n_agents: int = 200) -> Rules:
             AdjacencyRule(frozenset({ENDPOINT}), stations, "endpoint without a station"),
             AdjacencyRule(stations, frozenset({ENDPOINT}), "station without an endpoint"),
         ),
-        counts=tuple(CountRule(frozenset({s}), ">=", 1, f"stations of kind {TILES[s]}")
-                     for s in STATIONS)
+        counts=tuple(CountRule(frozenset({s}), ">=", 1, f"stations of kind {TILES[s]}") for s in STATIONS)
         + (CountRule(frozenset({EMPTY, ENDPOINT}), ">=", int(n_agents), "traversable tiles"),),
         fixed=np.zeros(shape, dtype=bool),
         fixed_layout=None,
@@ -57,10 +56,11 @@ class Manufacturing(LayoutKind):
     tiles = TILES
     gen_tiles = TILES
     palette = PALETTE
-    task = TaskModel(blocked="012", goals=tuple(
-        GoalKind(f"kind-{k} station", "e", next_to=str(k), dwell=d) for k, d in enumerate(DWELL)))
-    construction = Construction(anchors=STATIONS, endpoint=ENDPOINT, empty=EMPTY,
-                                exact_count=False)
+    task = TaskModel(
+        blocked="012",
+        goals=tuple(GoalKind(f"kind-{k} station", "e", next_to=str(k), dwell=d) for k, d in enumerate(DWELL)),
+    )
+    construction = Construction(anchors=STATIONS, endpoint=ENDPOINT, empty=EMPTY, exact_count=False)
     seed_block = SEED_BLOCK
     seed_offsets = SEED_OFFSETS
     eval_agent_step = 50

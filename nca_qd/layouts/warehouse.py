@@ -26,8 +26,13 @@ FRAME = 2  # fixed columns on each side
 
 # Shelves of the human-designed layout of each full-map size (N_s of the paper and its appendix).
 SHELVES_BY_SIZE: dict[tuple[int, int], int] = {
-    (33, 36): 240, (45, 47): 440, (57, 58): 700, (69, 69): 1020, (81, 80): 1400,
-    (93, 91): 1840, (101, 102): 2250,
+    (33, 36): 240,
+    (45, 47): 440,
+    (57, 58): 700,
+    (69, 69): 1020,
+    (81, 80): 1400,
+    (93, 91): 1840,
+    (101, 102): 2250,
 }
 
 
@@ -40,7 +45,7 @@ def frame(shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
     h, w = shape
     fixed = np.zeros(shape, dtype=bool)
     fixed[:, :FRAME] = True
-    fixed[:, w - FRAME:] = True
+    fixed[:, w - FRAME :] = True
     lay = np.full(shape, EMPTY, dtype=np.int32)
     rows = [i for i in range(1, h - 1) if (i - 1) % 3 == 0]
     lay[rows, 0] = WORKSTATION
@@ -54,7 +59,7 @@ def assemble(region: np.ndarray) -> np.ndarray:
     h, w = region.shape[-2:]
     _, lay = frame(full_shape((h, w)))
     out = np.broadcast_to(lay, region.shape[:-2] + lay.shape).copy()
-    out[..., :, FRAME:FRAME + w] = region
+    out[..., :, FRAME : FRAME + w] = region
     return out
 
 
@@ -65,18 +70,22 @@ def storage(layout: np.ndarray) -> np.ndarray:
 
 def default_shelves(shape: tuple[int, int]) -> int:
     """N_s for a full map of ``shape``: the human-designed layout's shelf count at that size."""
-    if tuple(shape) not in SHELVES_BY_SIZE:
+    key = (int(shape[0]), int(shape[1]))
+    if key not in SHELVES_BY_SIZE:
         sizes = ", ".join(f"{h}x{w}" for h, w in SHELVES_BY_SIZE)
-        raise NcaQdError(f"no default shelf count for a {shape[0]}x{shape[1]} warehouse "
-                         f"(known sizes: {sizes}); give n_shelves=<N>")
-    return SHELVES_BY_SIZE[tuple(shape)]
+        raise NcaQdError(
+            f"no default shelf count for a {shape[0]}x{shape[1]} warehouse "
+            f"(known sizes: {sizes}); give n_shelves=<N>"
+        )
+    return SHELVES_BY_SIZE[key]
 
 
 def rules(shape: tuple[int, int], n_shelves: int | None = None) -> Rules:
     """Validity of a full warehouse map of ``shape`` with ``n_shelves`` shelves (None: by size)."""
     if shape[1] <= 2 * FRAME or shape[0] < 3:
-        raise NcaQdError(f"a warehouse map needs at least 3 rows and {2 * FRAME + 1} columns, "
-                         f"got {shape[0]}x{shape[1]}")
+        raise NcaQdError(
+            f"a warehouse map needs at least 3 rows and {2 * FRAME + 1} columns, got {shape[0]}x{shape[1]}"
+        )
     n = default_shelves(shape) if n_shelves is None else int(n_shelves)
     fixed, lay = frame(shape)
     return Rules(
@@ -100,8 +109,10 @@ def check_frame(layout: np.ndarray, source: str) -> None:
     bad = np.argwhere(fixed & (layout != lay))
     if len(bad):
         r, c = bad[0]
-        raise NcaQdError(f"{source}: workstation column not as the warehouse requires at row {r}, "
-                         f"column {c}: {TILES[layout[r, c]]!r}, expected {TILES[lay[r, c]]!r}")
+        raise NcaQdError(
+            f"{source}: workstation column not as the warehouse requires at row {r}, "
+            f"column {c}: {TILES[layout[r, c]]!r}, expected {TILES[lay[r, c]]!r}"
+        )
     inner = np.argwhere(~fixed & (layout == WORKSTATION))
     if len(inner):
         r, c = inner[0]
@@ -125,8 +136,7 @@ class Warehouse(LayoutKind):
     tiles = TILES
     gen_tiles = GEN_TILES
     palette = PALETTE
-    construction = Construction(anchors=(SHELF,), endpoint=ENDPOINT, empty=EMPTY,
-                                exact_count=True)
+    construction = Construction(anchors=(SHELF,), endpoint=ENDPOINT, empty=EMPTY, exact_count=True)
     seed_block = SEED_BLOCK
     seed_offsets = SEED_OFFSETS
     eval_agent_step = 25
@@ -134,8 +144,10 @@ class Warehouse(LayoutKind):
 
     def __init__(self, name: str, left_weight: float = 1.0):
         self.name = name
-        self.task = TaskModel(blocked="@", goals=(
-            GoalKind("endpoint", "e"), GoalKind("workstation", "w", left_weight=left_weight)))
+        self.task = TaskModel(
+            blocked="@",
+            goals=(GoalKind("endpoint", "e"), GoalKind("workstation", "w", left_weight=left_weight)),
+        )
 
     def frame(self, shape):
         return frame(shape)

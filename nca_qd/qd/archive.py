@@ -27,7 +27,7 @@ pyribs' ``GridArchive``); measures outside the ranges land in the nearest border
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import chex
 import flax.struct
@@ -57,8 +57,9 @@ def grid_centroids(cells: Sequence[int], ranges: Sequence[Sequence[float]]) -> j
     return jnp.stack([m.ravel() for m in mesh], axis=-1).astype(jnp.float32)
 
 
-def grid_cell_indices(measures: jax.Array, cells: Sequence[int],
-                      ranges: Sequence[Sequence[float]]) -> jax.Array:
+def grid_cell_indices(
+    measures: jax.Array, cells: Sequence[int], ranges: Sequence[Sequence[float]]
+) -> jax.Array:
     """Cell index of each measure vector on a regular grid, by direct binning.
 
     Equivalent to QDax's nearest-centroid ``get_cells_indices`` on :func:`grid_centroids` (up to
@@ -89,9 +90,14 @@ class ThresholdRepertoire(MapElitesRepertoire):
     grid_ranges: tuple = flax.struct.field(pytree_node=False, default=())
 
     @classmethod
-    def create(cls, genotype_dim: int, cells: Sequence[int], ranges: Sequence[Sequence[float]],
-               learning_rate: float = 1.0,
-               threshold_min: float = -jnp.inf) -> "ThresholdRepertoire":
+    def create(
+        cls,
+        genotype_dim: int,
+        cells: Sequence[int],
+        ranges: Sequence[Sequence[float]],
+        learning_rate: float = 1.0,
+        threshold_min: float = -jnp.inf,
+    ) -> ThresholdRepertoire:
         """An empty archive for flat genotypes of size ``genotype_dim`` on a regular grid.
 
         ``learning_rate=1, threshold_min=-inf`` (the defaults) is a plain elitist MAP-Elites
@@ -117,8 +123,13 @@ class ThresholdRepertoire(MapElitesRepertoire):
     def occupied(self) -> jax.Array:
         return self.fitnesses[:, 0] > -jnp.inf
 
-    def add_with_info(self, genotypes: jax.Array, descriptors: jax.Array, fitnesses: jax.Array,
-                      cells: jax.Array | None = None) -> tuple["ThresholdRepertoire", AddInfo]:
+    def add_with_info(
+        self,
+        genotypes: jax.Array,
+        descriptors: jax.Array,
+        fitnesses: jax.Array,
+        cells: jax.Array | None = None,
+    ) -> tuple[ThresholdRepertoire, AddInfo]:
         """Insert a batch; returns the new archive and per-solution :class:`AddInfo`."""
         chex.assert_rank([genotypes, descriptors, fitnesses], [2, 2, 1])
         n = self.centroids.shape[0]
@@ -138,8 +149,7 @@ class ThresholdRepertoire(MapElitesRepertoire):
         ins = can_insert.astype(jnp.float32)
         count = jax.ops.segment_sum(ins, cells, num_segments=n)
         total = jax.ops.segment_sum(jnp.where(can_insert, fitnesses, 0.0), cells, num_segments=n)
-        best = jax.ops.segment_max(jnp.where(can_insert, fitnesses, -jnp.inf), cells,
-                                   num_segments=n)
+        best = jax.ops.segment_max(jnp.where(can_insert, fitnesses, -jnp.inf), cells, num_segments=n)
         touched = count > 0
         if self.threshold_min == -jnp.inf:
             new_thr = best  # plain archive: the threshold is the elite's objective

@@ -12,8 +12,9 @@ still read.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -64,15 +65,28 @@ def grid_centroids_np(cells: Sequence[int], ranges: Sequence[Sequence[float]]) -
     return np.stack([m.ravel() for m in mesh], axis=-1).astype(np.float32)
 
 
-def save_archive(path: str | Path, elites: Mapping[str, np.ndarray], grid_cells: Sequence[int],
-                 grid_ranges: Sequence[Sequence[float]]) -> None:
+def save_archive(
+    path: str | Path,
+    elites: Mapping[str, np.ndarray],
+    grid_cells: Sequence[int],
+    grid_ranges: Sequence[Sequence[float]],
+) -> None:
     """An archive's elites and grid as one ``.npz``, atomically."""
-    save_npz(path, {**elites, "grid_cells": np.asarray(grid_cells, np.int64),
-                    "grid_ranges": np.asarray(grid_ranges, np.float64)})
+    save_npz(
+        path,
+        {
+            **elites,
+            "grid_cells": np.asarray(grid_cells, np.int64),
+            "grid_ranges": np.asarray(grid_ranges, np.float64),
+        },
+    )
 
 
-def archive_view(elites: Mapping[str, np.ndarray], grid_cells: Sequence[int],
-                 grid_ranges: Sequence[Sequence[float]] | None = None) -> dict[str, Any]:
+def archive_view(
+    elites: Mapping[str, np.ndarray],
+    grid_cells: Sequence[int],
+    grid_ranges: Sequence[Sequence[float]] | None = None,
+) -> dict[str, Any]:
     """Per-cell arrays of a sparse archive (see module docstring)."""
     n = int(np.prod(grid_cells))
     cells = np.asarray(elites["cells"], np.int64)
@@ -80,9 +94,13 @@ def archive_view(elites: Mapping[str, np.ndarray], grid_cells: Sequence[int],
     objective[cells] = elites["objective"]
     measures = np.zeros((n, np.asarray(elites["measures"]).shape[1]), np.float32)
     measures[cells] = elites["measures"]
-    view: dict[str, Any] = {"objective": objective, "measures": measures,
-                            "genotypes": CellRows(cells, elites["genotypes"], n),
-                            "cells": cells, "grid_cells": np.asarray(grid_cells)}
+    view: dict[str, Any] = {
+        "objective": objective,
+        "measures": measures,
+        "genotypes": CellRows(cells, elites["genotypes"], n),
+        "cells": cells,
+        "grid_cells": np.asarray(grid_cells),
+    }
     if "thresholds" in elites:
         thresholds = np.full(n, np.nan, np.float32)
         thresholds[cells] = elites["thresholds"]

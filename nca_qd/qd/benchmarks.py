@@ -42,11 +42,17 @@ def sphere_batch_objective():
     return objective
 
 
-def sphere_spec(n: int = 100, learning_rate: float = 0.01, threshold_min: float = 0.0,
-                cells: int = 100) -> ArchiveSpec:
+def sphere_spec(
+    n: int = 100, learning_rate: float = 0.01, threshold_min: float = 0.0, cells: int = 100
+) -> ArchiveSpec:
     r = BOUND * n / 2
-    return ArchiveSpec(cells=[cells, cells], ranges=[[-r, r], [-r, r]],
-                       learning_rate=learning_rate, threshold_min=threshold_min, qd_offset=0.0)
+    return ArchiveSpec(
+        cells=[cells, cells],
+        ranges=[[-r, r], [-r, r]],
+        learning_rate=learning_rate,
+        threshold_min=threshold_min,
+        qd_offset=0.0,
+    )
 
 
 def normalised_qd_score(qd_score: float, n_cells: int) -> float:

@@ -41,16 +41,17 @@ from __future__ import annotations
 import io as _io
 import json
 import zipfile
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nca_qd.interfaces import CompactEmitter
 from nca_qd.errors import NcaQdError
+from nca_qd.interfaces import CompactEmitter
 from nca_qd.io import atomic_write_bytes
 from nca_qd.qd.archive import ThresholdRepertoire
 
@@ -72,20 +73,38 @@ class CheckpointPolicy:
         if not isinstance(self.exact, bool):
             raise NcaQdError(f"checkpoint exact must be true or false, got {self.exact!r}")
         if self.restart_dtype not in ("int8", "float16", "float32"):
-            raise NcaQdError(f"checkpoint restart_dtype must be int8, float16 or float32, got {self.restart_dtype!r}")
+            raise NcaQdError(
+                f"checkpoint restart_dtype must be int8, float16 or float32, got {self.restart_dtype!r}"
+            )
         if not isinstance(self.covariance_rank, int) or self.covariance_rank < 0:
-            raise NcaQdError(f"checkpoint covariance_rank must be a non-negative integer, got {self.covariance_rank!r}")
-        if isinstance(self.covariance_tolerance, bool) or not isinstance(self.covariance_tolerance, (int, float)) \
-                or not self.covariance_tolerance >= 0:
-            raise NcaQdError(f"checkpoint covariance_tolerance must be a number >= 0, got {self.covariance_tolerance!r}")
-        if self.exact_elites is not None and (not isinstance(self.exact_elites, int) or self.exact_elites < 0):
-            raise NcaQdError(f"checkpoint exact_elites must be a non-negative integer or null, got {self.exact_elites!r}")
+            raise NcaQdError(
+                f"checkpoint covariance_rank must be a non-negative integer, got {self.covariance_rank!r}"
+            )
+        if (
+            isinstance(self.covariance_tolerance, bool)
+            or not isinstance(self.covariance_tolerance, (int, float))
+            or not self.covariance_tolerance >= 0
+        ):
+            raise NcaQdError(
+                f"checkpoint covariance_tolerance must be a number >= 0, got {self.covariance_tolerance!r}"
+            )
+        if self.exact_elites is not None and (
+            not isinstance(self.exact_elites, int) or self.exact_elites < 0
+        ):
+            raise NcaQdError(
+                f"checkpoint exact_elites must be a non-negative integer or null, got {self.exact_elites!r}"
+            )
 
     @classmethod
-    def from_config(cls, cfg: Mapping[str, Any] | None) -> "CheckpointPolicy":
+    def from_config(cls, cfg: Mapping[str, Any] | None) -> CheckpointPolicy:
         cfg = dict(cfg or {})
-        unknown = set(cfg) - {"exact", "restart_dtype", "covariance_rank", "covariance_tolerance",
-                              "exact_elites"}
+        unknown = set(cfg) - {
+            "exact",
+            "restart_dtype",
+            "covariance_rank",
+            "covariance_tolerance",
+            "exact_elites",
+        }
         if unknown:
             raise NcaQdError(f"unknown checkpoint setting(s): {', '.join(sorted(unknown))}")
         return cls(**cfg)
@@ -106,16 +125,23 @@ def archive_elites(archive: ThresholdRepertoire) -> dict[str, np.ndarray]:
     }
 
 
-def _restore_archive(template: ThresholdRepertoire, cells: np.ndarray, objective: np.ndarray,
-                     measures: np.ndarray, thresholds: np.ndarray,
-                     genotypes: np.ndarray) -> ThresholdRepertoire:
+def _restore_archive(
+    template: ThresholdRepertoire,
+    cells: np.ndarray,
+    objective: np.ndarray,
+    measures: np.ndarray,
+    thresholds: np.ndarray,
+    genotypes: np.ndarray,
+) -> ThresholdRepertoire:
     n, d = template.genotypes.shape
     m = template.descriptors.shape[1]
     if cells.size and (cells.min() < 0 or cells.max() >= n):
         raise NcaQdError(f"checkpoint holds cell {int(cells.max())}, the archive has {n} cells")
     if genotypes.shape != (cells.size, d) or measures.shape != (cells.size, m):
-        raise NcaQdError(f"checkpoint holds {genotypes.shape[1:]} parameters and {measures.shape[1:]} "
-                         f"measures per elite; this configuration has ({d},) and ({m},)")
+        raise NcaQdError(
+            f"checkpoint holds {genotypes.shape[1:]} parameters and {measures.shape[1:]} "
+            f"measures per elite; this configuration has ({d},) and ({m},)"
+        )
     g = np.zeros((n, d), np.float32)
     g[cells] = genotypes
     f = np.full((n, 1), -np.inf, np.float32)
@@ -124,8 +150,12 @@ def _restore_archive(template: ThresholdRepertoire, cells: np.ndarray, objective
     desc[cells] = measures
     thr = np.asarray(template.thresholds).copy()
     thr[cells] = thresholds
-    return template.replace(genotypes=jnp.asarray(g), fitnesses=jnp.asarray(f),
-                            descriptors=jnp.asarray(desc), thresholds=jnp.asarray(thr))
+    return template.replace(
+        genotypes=jnp.asarray(g),
+        fitnesses=jnp.asarray(f),
+        descriptors=jnp.asarray(desc),
+        thresholds=jnp.asarray(thr),
+    )
 
 
 def _store_params(name: str, rows: np.ndarray, dtype: str) -> dict[str, np.ndarray]:
@@ -152,8 +182,9 @@ def _load_params(arrays: Mapping[str, np.ndarray], name: str) -> np.ndarray:
     return rows.astype(np.float32)
 
 
-def encode_archives(res: ThresholdRepertoire, opt: ThresholdRepertoire,
-                    policy: CheckpointPolicy) -> dict[str, np.ndarray]:
+def encode_archives(
+    res: ThresholdRepertoire, opt: ThresholdRepertoire, policy: CheckpointPolicy
+) -> dict[str, np.ndarray]:
     """Both archives as arrays named ``res_*`` and ``opt_*`` (see module docstring)."""
     out: dict[str, np.ndarray] = {}
     r, o = archive_elites(res), archive_elites(opt)
@@ -162,7 +193,7 @@ def encode_archives(res: ThresholdRepertoire, opt: ThresholdRepertoire,
     keep = np.ones(r["cells"].size, bool)
     if policy.exact_elites is not None and not policy.exact:
         keep[:] = False
-        best = np.lexsort((r["cells"], -r["objective"]))[:policy.exact_elites]
+        best = np.lexsort((r["cells"], -r["objective"]))[: policy.exact_elites]
         keep[best] = True
     out.update({f"res_{k}": v for k, v in r.items() if k != "genotypes"})
     out["res_exact"] = keep
@@ -182,21 +213,29 @@ def encode_archives(res: ThresholdRepertoire, opt: ThresholdRepertoire,
     return out
 
 
-def decode_archives(arrays: Mapping[str, np.ndarray], res_template: ThresholdRepertoire,
-                    opt_template: ThresholdRepertoire) -> tuple[ThresholdRepertoire, ThresholdRepertoire]:
+def decode_archives(
+    arrays: Mapping[str, np.ndarray], res_template: ThresholdRepertoire, opt_template: ThresholdRepertoire
+) -> tuple[ThresholdRepertoire, ThresholdRepertoire]:
     """Inverse of :func:`encode_archives` into empty archives of this configuration."""
     d = res_template.genotypes.shape[1]
     if tuple(arrays["grid_cells"].tolist()) != tuple(res_template.grid_cells):
-        raise NcaQdError(f"checkpoint's archive grid is {tuple(arrays['grid_cells'].tolist())}, "
-                         f"this configuration's {tuple(res_template.grid_cells)}")
+        raise NcaQdError(
+            f"checkpoint's archive grid is {tuple(arrays['grid_cells'].tolist())}, "
+            f"this configuration's {tuple(res_template.grid_cells)}"
+        )
     if arrays["res_genotypes"].shape[1:] != (d,):
-        raise NcaQdError(f"checkpoint holds {arrays['res_genotypes'].shape[1]} parameters per "
-                         f"elite; this configuration has {d}")
+        raise NcaQdError(
+            f"checkpoint holds {arrays['res_genotypes'].shape[1]} parameters per "
+            f"elite; this configuration has {d}"
+        )
     archives = []
     for which, template in (("result", res_template), ("opt", opt_template)):
         e = archive_from_arrays(arrays, which)
-        archives.append(_restore_archive(template, e["cells"], e["objective"], e["measures"],
-                                         e["thresholds"], e["genotypes"]))
+        archives.append(
+            _restore_archive(
+                template, e["cells"], e["objective"], e["measures"], e["thresholds"], e["genotypes"]
+            )
+        )
     return archives[0], archives[1]
 
 
@@ -220,8 +259,9 @@ def decode_tree(prefix: str, arrays: Mapping[str, np.ndarray], template: Any) ->
             raise NcaQdError(f"checkpoint lacks {name} (written by another algorithm or version)")
         value = np.asarray(arrays[name])
         if value.shape != np.shape(ref):
-            raise NcaQdError(f"checkpoint's {name} has shape {value.shape}, this configuration "
-                             f"needs {np.shape(ref)}")
+            raise NcaQdError(
+                f"checkpoint's {name} has shape {value.shape}, this configuration needs {np.shape(ref)}"
+            )
         leaves.append(jnp.asarray(value, dtype=jnp.asarray(ref).dtype))
     return jax.tree_util.tree_unflatten(treedef, leaves)
 
@@ -233,41 +273,57 @@ def encode_state(state: Any, emitter: Any, policy: CheckpointPolicy) -> tuple[di
     arrays = encode_archives(state.res_archive, state.opt_archive, policy)
     info: dict[str, Any] = {}
     if isinstance(emitter, CompactEmitter) and not policy.exact:
-        em, info = emitter.compact_state(state.emitter_state, policy.covariance_rank,
-                                         policy.covariance_tolerance)
+        em, info = emitter.compact_state(
+            state.emitter_state, policy.covariance_rank, policy.covariance_tolerance
+        )
         arrays.update({"emitter" + k: v for k, v in em.items()})
     else:
         arrays.update(encode_tree("emitter", state.emitter_state))
-    arrays["key"] = np.asarray(jax.random.key_data(state.key) if jnp.issubdtype(state.key.dtype, jax.dtypes.prng_key)
-                               else state.key)
+    arrays["key"] = np.asarray(
+        jax.random.key_data(state.key) if jnp.issubdtype(state.key.dtype, jax.dtypes.prng_key) else state.key
+    )
     arrays["iteration"] = np.asarray(state.iteration)
     arrays["evaluations"] = np.asarray(state.evaluations)
     return arrays, info
 
 
-def decode_state(arrays: Mapping[str, np.ndarray], template: Any, emitter: Any,
-                 exact: bool) -> Any:
+def decode_state(arrays: Mapping[str, np.ndarray], template: Any, emitter: Any, exact: bool) -> Any:
     """Inverse of :func:`encode_state` into the structure of ``template`` (an initial state)."""
     res, opt = decode_archives(arrays, template.res_archive, template.opt_archive)
     if isinstance(emitter, CompactEmitter) and not exact:
-        em = {k[len("emitter"):]: v for k, v in arrays.items() if k.startswith("emitter")}
+        em = {k[len("emitter") :]: v for k, v in arrays.items() if k.startswith("emitter")}
         emitter_state = emitter.expand_state(em, template.emitter_state)
     else:
         emitter_state = decode_tree("emitter", arrays, template.emitter_state)
     return template.replace(
-        res_archive=res, opt_archive=opt, emitter_state=emitter_state,
+        res_archive=res,
+        opt_archive=opt,
+        emitter_state=emitter_state,
         key=jnp.asarray(arrays["key"], dtype=template.key.dtype),
         iteration=jnp.asarray(arrays["iteration"], dtype=template.iteration.dtype),
-        evaluations=jnp.asarray(arrays["evaluations"], dtype=template.evaluations.dtype))
+        evaluations=jnp.asarray(arrays["evaluations"], dtype=template.evaluations.dtype),
+    )
 
 
-def save_checkpoint(path: str | Path, state: Any, emitter: Any, policy: CheckpointPolicy,
-                    meta: Mapping[str, Any] | None = None, compress: bool = False) -> dict:
+def save_checkpoint(
+    path: str | Path,
+    state: Any,
+    emitter: Any,
+    policy: CheckpointPolicy,
+    meta: Mapping[str, Any] | None = None,
+    compress: bool = False,
+) -> dict:
     """Write ``state`` to ``path`` atomically; returns the meta dict written."""
     arrays, info = encode_state(state, emitter, policy)
-    full_meta = {"format": FORMAT, "version": FORMAT_VERSION,
-                 "iteration": int(state.iteration), "evaluations": int(state.evaluations),
-                 "policy": asdict(policy), "encoding": info, **dict(meta or {})}
+    full_meta = {
+        "format": FORMAT,
+        "version": FORMAT_VERSION,
+        "iteration": int(state.iteration),
+        "evaluations": int(state.evaluations),
+        "policy": asdict(policy),
+        "encoding": info,
+        **dict(meta or {}),
+    }
     arrays["meta"] = np.asarray(json.dumps(full_meta))
     buf = _io.BytesIO()
     (np.savez_compressed if compress else np.savez)(buf, **arrays)
@@ -286,8 +342,10 @@ def read_checkpoint(path: str | Path) -> tuple[dict[str, np.ndarray], dict]:
     if meta.get("format") != FORMAT:
         raise NcaQdError(f"{path}: not an nca-qd checkpoint")
     if int(meta.get("version", 0)) > FORMAT_VERSION:
-        raise NcaQdError(f"{path}: checkpoint format {meta.get('version')} is newer than this "
-                         f"nca-qd reads ({FORMAT_VERSION}); update the package")
+        raise NcaQdError(
+            f"{path}: checkpoint format {meta.get('version')} is newer than this "
+            f"nca-qd reads ({FORMAT_VERSION}); update the package"
+        )
     return arrays, meta
 
 

@@ -35,7 +35,6 @@ from qdax.core.emitters.mutation_operators import isoline_variation
 
 from nca_qd.qd.archive import AddInfo, ThresholdRepertoire
 
-
 _BLAS = None  # threadpoolctl controller, created on first use
 
 
@@ -90,8 +89,7 @@ class LazyCMAES(CMA_ES):
 
     def _ask(self, key, state, params):
         refresh = state.generation_counter % self.eigen_gap == 0
-        C, B, D = jax.lax.cond(refresh, eigen_decomposition, lambda c: (c, state.B, state.D),
-                               state.C)
+        C, B, D = jax.lax.cond(refresh, eigen_decomposition, lambda c: (c, state.B, state.D), state.C)
         z = jax.random.normal(key, (self.population_size, self.num_dims))
         population = state.mean + state.std * ((z * D) @ B.T)
         return population, state.replace(C=C, B=B, D=D)
@@ -120,8 +118,15 @@ def sample_elites(archive: ThresholdRepertoire, key: jax.Array, n: int) -> jax.A
 class ESEmitters:
     """``n_emitters`` CMA-ES emitters of ``batch_size`` each (see module docstring)."""
 
-    def __init__(self, n_emitters: int, batch_size: int, dim: int, sigma0: float,
-                 ranking: str = "improvement", restart_rule: str = "no_improvement"):
+    def __init__(
+        self,
+        n_emitters: int,
+        batch_size: int,
+        dim: int,
+        sigma0: float,
+        ranking: str = "improvement",
+        restart_rule: str = "no_improvement",
+    ):
         if ranking not in ("improvement", "objective"):
             raise ValueError(f"unknown ranking {ranking!r}")
         if restart_rule not in ("no_improvement", "basic"):
@@ -145,8 +150,15 @@ class ESEmitters:
         pop, es = jax.lax.map(lambda a: self.es.ask(a[0], a[1], self.params), (keys, state.es))
         return pop.reshape(self.batch_size, self.dim), state.replace(es=es)
 
-    def tell(self, state: ESEmitterState, archive: ThresholdRepertoire, solutions: jax.Array,
-             objective: jax.Array, add_info: AddInfo, key: jax.Array) -> ESEmitterState:
+    def tell(
+        self,
+        state: ESEmitterState,
+        archive: ThresholdRepertoire,
+        solutions: jax.Array,
+        objective: jax.Array,
+        add_info: AddInfo,
+        key: jax.Array,
+    ) -> ESEmitterState:
         chex.assert_shape(solutions, (self.batch_size, self.dim))
         n, b = self.n_emitters, self.emitter_batch
         values = add_info.value if self.ranking == "improvement" else objective
@@ -168,13 +180,14 @@ class ESEmitters:
             return jax.tree.map(lambda a, c: jnp.where(stop, a, c), fresh, new), stop
 
         es, restarted = jax.lax.map(
-            one, (state.es, solutions.reshape(n, b, self.dim), values, added, restart_means, keys))
+            one, (state.es, solutions.reshape(n, b, self.dim), values, added, restart_means, keys)
+        )
         return state.replace(es=es, restarts=state.restarts + restarted.astype(jnp.int32))
 
-
     # --- checkpoints (nca_qd.qd.checkpoint) -------------------------------------------------
-    def compact_state(self, state: ESEmitterState, rank: int, tolerance: float
-                      ) -> tuple[dict[str, np.ndarray], dict]:
+    def compact_state(
+        self, state: ESEmitterState, rank: int, tolerance: float
+    ) -> tuple[dict[str, np.ndarray], dict]:
         """The emitters' state without its ``d x d`` arrays where that loses (almost) nothing.
 
         Every vector and counter is stored exactly. Two matrices per emitter are stored
@@ -185,30 +198,46 @@ class ESEmitters:
         that matrix rather than from ``C`` keeps the resumed search sampling as the
         uninterrupted one would. Returns the arrays and, per emitter, what was left out."""
         es = state.es
-        out = {k: np.asarray(v) for k, v in
-               {".restarts": state.restarts, ".es.mean": es.mean, ".es.std": es.std,
-                ".es.p_std": es.p_std, ".es.p_c": es.p_c,
+        out = {
+            k: np.asarray(v)
+            for k, v in {
+                ".restarts": state.restarts,
+                ".es.mean": es.mean,
+                ".es.std": es.std,
+                ".es.p_std": es.p_std,
+                ".es.p_c": es.p_c,
                 ".es.generation_counter": es.generation_counter,
-                ".es.best_solution": es.best_solution, ".es.best_fitness": es.best_fitness}.items()}
+                ".es.best_solution": es.best_solution,
+                ".es.best_fitness": es.best_fitness,
+            }.items()
+        }
         C = np.asarray(es.C)
         arrays, left, full = compact_matrices(C, rank, tolerance)
         out.update({".es.C" + k: v for k, v in arrays.items()})
         B, D = np.asarray(es.B, np.float32), np.asarray(es.D, np.float32)
         scalar = np.ptp(D, axis=1) <= 1e-7 * np.abs(D).mean(axis=1)
-        sampling = np.stack([np.diag(np.full(self.dim, d_[0] ** 2)) if sc else (b * d_ ** 2) @ b.T
-                             for b, d_, sc in zip(B, D, scalar)]).astype(np.float32)
+        sampling = np.stack(
+            [
+                np.diag(np.full(self.dim, d_[0] ** 2)) if sc else (b * d_**2) @ b.T
+                for b, d_, sc in zip(B, D, scalar)
+            ]
+        ).astype(np.float32)
         arrays, s_left, s_full = compact_matrices(sampling, rank, tolerance)
         out.update({".es.S" + k: v for k, v in arrays.items()})
-        return out, {"covariance_left_out": left, "covariance_full": full,
-                     "sampling_left_out": s_left, "sampling_full": s_full}
+        return out, {
+            "covariance_left_out": left,
+            "covariance_full": full,
+            "sampling_left_out": s_left,
+            "sampling_full": s_full,
+        }
 
     def expand_state(self, arrays: dict[str, np.ndarray], template: ESEmitterState) -> ESEmitterState:
         """Inverse of :meth:`compact_state`; ``B`` and ``D`` come from the sampling matrix."""
         from nca_qd.errors import NcaQdError
 
         n, d = self.n_emitters, self.dim
-        C = expand_matrices({k[len(".es.C"):]: v for k, v in arrays.items() if k.startswith(".es.C")}, n, d)
-        S = expand_matrices({k[len(".es.S"):]: v for k, v in arrays.items() if k.startswith(".es.S")}, n, d)
+        C = expand_matrices({k[len(".es.C") :]: v for k, v in arrays.items() if k.startswith(".es.C")}, n, d)
+        S = expand_matrices({k[len(".es.S") :]: v for k, v in arrays.items() if k.startswith(".es.S")}, n, d)
         B, D = [], []
         for s_ in S:
             if not (s_ - np.diag(np.diag(s_))).any() and np.ptp(np.diag(s_)) == 0:
@@ -220,33 +249,41 @@ class ESEmitters:
             B.append(b)
             D.append(np.sqrt(np.maximum(d_sq, 1e-8)))
         es = template.es
-        fields = {"mean": ".es.mean", "std": ".es.std", "p_std": ".es.p_std", "p_c": ".es.p_c",
-                  "generation_counter": ".es.generation_counter",
-                  "best_solution": ".es.best_solution", "best_fitness": ".es.best_fitness"}
+        fields = {
+            "mean": ".es.mean",
+            "std": ".es.std",
+            "p_std": ".es.p_std",
+            "p_c": ".es.p_c",
+            "generation_counter": ".es.generation_counter",
+            "best_solution": ".es.best_solution",
+            "best_fitness": ".es.best_fitness",
+        }
         values = {}
         for field, name in fields.items():
             ref = getattr(es, field)
             if name not in arrays or arrays[name].shape != ref.shape:
                 raise NcaQdError(f"emitter state's {field} does not match this configuration")
             values[field] = jnp.asarray(arrays[name], dtype=ref.dtype)
-        es = es.replace(**values, C=jnp.asarray(C), B=jnp.asarray(np.stack(B)),
-                        D=jnp.asarray(np.stack(D)))
+        es = es.replace(**values, C=jnp.asarray(C), B=jnp.asarray(np.stack(B)), D=jnp.asarray(np.stack(D)))
         restarts = jnp.asarray(arrays[".restarts"], dtype=template.restarts.dtype)
         return template.replace(es=es, restarts=restarts)
 
 
-def compact_matrices(M: np.ndarray, rank: int, tolerance: float
-                     ) -> tuple[dict[str, np.ndarray], list[float], list[bool]]:
+def compact_matrices(
+    M: np.ndarray, rank: int, tolerance: float
+) -> tuple[dict[str, np.ndarray], list[float], list[bool]]:
     """Symmetric matrices ``[n, d, d]`` as diagonal + ``rank`` eigenpairs of the off-diagonal
     part (:func:`lowrank_offdiagonal`) where that leaves out at most ``tolerance``, in full
     otherwise. Returns the arrays, what was left out per matrix and which were kept in full."""
     parts = [lowrank_offdiagonal(np.asarray(m, np.float64), rank) for m in M]
     full = np.array([p[3] > tolerance for p in parts], bool)
-    arrays = {"_diag": np.stack([p[0] for p in parts]).astype(np.float32),
-              "_vectors": np.stack([p[1] for p in parts]).astype(np.float32),
-              "_values": np.stack([p[2] for p in parts]).astype(np.float32),
-              "_full_index": np.flatnonzero(full).astype(np.int32),
-              "_full": np.asarray(M, np.float32)[full]}
+    arrays = {
+        "_diag": np.stack([p[0] for p in parts]).astype(np.float32),
+        "_vectors": np.stack([p[1] for p in parts]).astype(np.float32),
+        "_values": np.stack([p[2] for p in parts]).astype(np.float32),
+        "_full_index": np.flatnonzero(full).astype(np.int32),
+        "_full": np.asarray(M, np.float32)[full],
+    }
     return arrays, [0.0 if f else float(p[3]) for p, f in zip(parts, full)], full.tolist()
 
 
@@ -260,18 +297,20 @@ def expand_matrices(arrays: dict[str, np.ndarray], n: int, d: int) -> np.ndarray
     except KeyError as exc:
         raise NcaQdError(f"emitter state lacks {exc} (written by another algorithm)") from None
     if diag.shape != (n, d) or vec.shape[:2] != (n, d):
-        raise NcaQdError(f"emitter state holds {diag.shape[0]} emitters of dimension "
-                         f"{diag.shape[-1]}; this configuration has {n} of {d}")
-    M = np.einsum("edk,ek,efk->edf", vec.astype(np.float64), val.astype(np.float64),
-                  vec.astype(np.float64))
+        raise NcaQdError(
+            f"emitter state holds {diag.shape[0]} emitters of dimension "
+            f"{diag.shape[-1]}; this configuration has {n} of {d}"
+        )
+    M = np.einsum("edk,ek,efk->edf", vec.astype(np.float64), val.astype(np.float64), vec.astype(np.float64))
     M[:, np.arange(d), np.arange(d)] = diag
     M = M.astype(np.float32)
     M[full_index] = full
     return M
 
 
-def lowrank_offdiagonal(C: np.ndarray, rank: int, seed: int = 0
-                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+def lowrank_offdiagonal(
+    C: np.ndarray, rank: int, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """``C`` (symmetric) as ``diag(C) + V diag(w) V^T`` with the ``rank`` eigenpairs of the
     off-diagonal part largest in magnitude (randomised subspace iteration: O(d^2 rank), no full
     ``eigh``). Returns (diagonal, V [d, rank], w [rank], left out) where "left out" is
@@ -306,8 +345,9 @@ class IsoLineEmitter:
     are drawn from N(0, sigma0^2 I) instead.
     """
 
-    def __init__(self, batch_size: int, dim: int, sigma0: float, iso_sigma: float,
-                 line_sigma: float, n_initial: int):
+    def __init__(
+        self, batch_size: int, dim: int, sigma0: float, iso_sigma: float, line_sigma: float, n_initial: int
+    ):
         self.batch_size, self.dim, self.sigma0 = batch_size, dim, sigma0
         self.iso_sigma, self.line_sigma, self.n_initial = iso_sigma, line_sigma, n_initial
 

@@ -3,7 +3,8 @@
 Domain-agnostic: it searches over flat parameter vectors with any batched objective
 ``f(solutions [b, d], key, context) -> EvalBatch`` (objective, measures, optionally a separate
 result objective and validity masks; ``context`` lets a scorer look up the result archive's
-elites, which the multi-agent domains use to decide where exact simulation is worth it). ``ask`` and ``add + tell`` are each one jitted call;
+elites, which the multi-agent domains use to decide where exact simulation is worth it). ``ask`` and
+``add + tell`` are each one jitted call;
 the evaluation between them is the domain's (a jitted JAX function for the maze, a host-side
 pipeline of repair and simulation for the warehouse).
 
@@ -15,8 +16,9 @@ elite counts a non-negative amount.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any
 
 import chex
 import flax.struct
@@ -64,9 +66,9 @@ class QDLoop:
     def init(self, key: jax.Array) -> QDState:
         k_emit, k_run = jax.random.split(key)
         return QDState(
-            opt_archive=ThresholdRepertoire.create(self.dim, self.spec.cells, self.spec.ranges,
-                                                   self.spec.learning_rate,
-                                                   self.spec.threshold_min),
+            opt_archive=ThresholdRepertoire.create(
+                self.dim, self.spec.cells, self.spec.ranges, self.spec.learning_rate, self.spec.threshold_min
+            ),
             res_archive=ThresholdRepertoire.create(self.dim, self.spec.cells, self.spec.ranges),
             emitter_state=self.emitter.init(k_emit),
             key=k_run,
@@ -79,8 +81,9 @@ class QDLoop:
         solutions, emitter_state = self.emitter.ask(state.emitter_state, state.opt_archive, k_ask)
         return solutions, k_eval, state.replace(key=key, emitter_state=emitter_state)
 
-    def _update_impl(self, state: QDState, solutions, objective, result_objective, measures, valid,
-                     result_valid):
+    def _update_impl(
+        self, state: QDState, solutions, objective, result_objective, measures, valid, result_valid
+    ):
         chex.assert_shape(solutions, (self.batch_size, self.dim))
         chex.assert_shape([objective, result_objective, valid, result_valid], (self.batch_size,))
         chex.assert_shape(measures, (self.batch_size, len(self.spec.cells)))
@@ -91,16 +94,23 @@ class QDLoop:
         cells = grid_cell_indices(measures, self.spec.cells, self.spec.ranges)
         opt_archive, info = state.opt_archive.add_with_info(solutions, measures, f_opt, cells)
         res_archive, _ = state.res_archive.add_with_info(solutions, measures, f_res, cells)
-        emitter_state = self.emitter.tell(state.emitter_state, opt_archive, solutions, f_opt,
-                                          info, k_tell)
-        new = state.replace(opt_archive=opt_archive, res_archive=res_archive,
-                            emitter_state=emitter_state, key=key,
-                            iteration=state.iteration + 1,
-                            evaluations=state.evaluations + self.batch_size)
+        emitter_state = self.emitter.tell(state.emitter_state, opt_archive, solutions, f_opt, info, k_tell)
+        new = state.replace(
+            opt_archive=opt_archive,
+            res_archive=res_archive,
+            emitter_state=emitter_state,
+            key=key,
+            iteration=state.iteration + 1,
+            evaluations=state.evaluations + self.batch_size,
+        )
         offset = self.spec.qd_offset
         res, opt = archive_stats(res_archive, offset), archive_stats(opt_archive, offset)
-        metrics = {**res, **{f"opt_{k}": v for k, v in opt.items()},
-                   "batch_best": jnp.max(f_res), "batch_added": jnp.sum(info.status > 0)}
+        metrics = {
+            **res,
+            **{f"opt_{k}": v for k, v in opt.items()},
+            "batch_best": jnp.max(f_res),
+            "batch_added": jnp.sum(info.status > 0),
+        }
         return new, metrics
 
     def context(self, state: QDState) -> ScoringContext:
@@ -119,12 +129,19 @@ class QDLoop:
         t0 = time.perf_counter()
         solutions, k_eval, state = self._ask(state)
         ev = self.objective(solutions, k_eval, self.context(state))
-        state, metrics = self._update(state, solutions, jnp.asarray(ev.objective),
-                                      jnp.asarray(ev.result_objective), jnp.asarray(ev.measures),
-                                      jnp.asarray(ev.valid), jnp.asarray(ev.result_valid))
+        state, metrics = self._update(
+            state,
+            solutions,
+            jnp.asarray(ev.objective),
+            jnp.asarray(ev.result_objective),
+            jnp.asarray(ev.measures),
+            jnp.asarray(ev.valid),
+            jnp.asarray(ev.result_valid),
+        )
         out = {k: float(v) for k, v in jax.device_get(metrics).items()}
-        out.update({k: v if isinstance(v, int) else float(v)
-                    for k, v in dict(ev.extras.get("metrics", {})).items()})
+        out.update(
+            {k: v if isinstance(v, int) else float(v) for k, v in dict(ev.extras.get("metrics", {})).items()}
+        )
         out["iteration"] = int(state.iteration)
         out["evaluations"] = int(state.evaluations)
         out["step_seconds"] = time.perf_counter() - t0
@@ -139,13 +156,25 @@ def make_emitter(algo_cfg: Any, qd_cfg: Any, dim: int):
     name = algo_cfg["name"]
     n, b, sigma0 = int(qd_cfg["n_emitters"]), int(qd_cfg["batch_size"]), float(qd_cfg["sigma0"])
     if name == "cma_mae":
-        return ESEmitters(n, b, dim, sigma0, ranking="improvement",
-                          restart_rule=algo_cfg.get("restart_rule", "no_improvement"))
+        return ESEmitters(
+            n,
+            b,
+            dim,
+            sigma0,
+            ranking="improvement",
+            restart_rule=algo_cfg.get("restart_rule", "no_improvement"),
+        )
     if name == "cma_es":
         return ESEmitters(n, b, dim, sigma0, ranking="objective", restart_rule="basic")
     if name == "map_elites":
-        return IsoLineEmitter(n * b, dim, sigma0, float(algo_cfg["iso_sigma"]),
-                              float(algo_cfg["line_sigma"]), int(algo_cfg["n_initial"]))
+        return IsoLineEmitter(
+            n * b,
+            dim,
+            sigma0,
+            float(algo_cfg["iso_sigma"]),
+            float(algo_cfg["line_sigma"]),
+            int(algo_cfg["n_initial"]),
+        )
     raise NcaQdError(f"unknown algorithm {name!r} (known: cma_mae, map_elites, cma_es)")
 
 

@@ -69,11 +69,11 @@ def tiles_of(domain_name: str) -> str:
     return get_layout(domain_name, "repair domain").tiles
 
 
-def make_rules(domain_name: str, shape: tuple[int, int], *, n_shelves: int | None = None,
-               n_agents: int = 200) -> Rules:
+def make_rules(
+    domain_name: str, shape: tuple[int, int], *, n_shelves: int | None = None, n_agents: int = 200
+) -> Rules:
     """Validity rules of ``domain_name`` for a full layout of ``shape``."""
-    return get_layout(domain_name, "repair domain").rules(shape, n_shelves=n_shelves,
-                                                          n_agents=n_agents)
+    return get_layout(domain_name, "repair domain").rules(shape, n_shelves=n_shelves, n_agents=n_agents)
 
 
 def similarity(layout_in: np.ndarray, layout_out: np.ndarray, rules: Rules) -> float:
@@ -119,11 +119,20 @@ def repair(
     if _count_impossible(rules):
         status, best = "infeasible", None
     elif method in ("neighbourhood", "hybrid"):
-        out = repair_neighbourhood(layout, rules, greedy, time_limit=time_limit_s,
-                                   improve_time=improve_time_s,
-                                   improve_windows=improve_windows, window=window,
-                                   window_time=window_time_s, max_window_cells=max_window_cells,
-                                   max_violation_fraction=max_violation_fraction, threads=threads, seed=seed)
+        out = repair_neighbourhood(
+            layout,
+            rules,
+            greedy,
+            time_limit=time_limit_s,
+            improve_time=improve_time_s,
+            improve_windows=improve_windows,
+            window=window,
+            window_time=window_time_s,
+            max_window_cells=max_window_cells,
+            max_violation_fraction=max_violation_fraction,
+            threads=threads,
+            seed=seed,
+        )
         status, best = out.status, out.layout
         details.update(out.stages)
         # The MILP has no work limit that bounds its root (a far-from-valid 33x36 layout
@@ -171,8 +180,11 @@ def resolve_improve_time(value: float | str | None, n_free: int) -> float:
 def _count_impossible(rules: Rules) -> bool:
     """A count rule no layout can meet: more tiles required than free and fixed cells can hold."""
     for rule in rules.counts:
-        fixed_n = 0 if rules.fixed_layout is None else int(
-            (rules.fixed & np.isin(rules.fixed_layout, list(rule.tiles))).sum())
+        fixed_n = (
+            0
+            if rules.fixed_layout is None
+            else int((rules.fixed & np.isin(rules.fixed_layout, list(rule.tiles))).sum())
+        )
         free_n = int((~rules.fixed).sum()) if set(rule.tiles) & set(rules.free_tiles) else 0
         if rule.value > fixed_n + free_n:
             return True
@@ -184,8 +196,9 @@ def _polish(layout, start, rules, time_limit, threads, seed, details):
     in its budget, ``optimal`` if it proves one; ``start`` (``feasible``) otherwise."""
     weights = rules.cell_weights(layout)
     before = weighted_distance(start, layout, weights)
-    res = solve_window(start, layout, ~rules.fixed, rules, time_limit=time_limit,
-                       threads=threads, seed=seed, warm_start=True)
+    res = solve_window(
+        start, layout, ~rules.fixed, rules, time_limit=time_limit, threads=threads, seed=seed, warm_start=True
+    )
     details["milp_s"] = res.seconds
     if res.layout is None or not is_valid(res.layout, rules):
         return "feasible", start
@@ -203,8 +216,16 @@ def _full(layout, rules, greedy, time_limit, threads, seed, details):
     start = greedy(layout)
     warm = start is not None and is_valid(start, rules)
     current = start if warm else layout
-    res = solve_window(current, layout, ~rules.fixed, rules, time_limit=time_limit,
-                       threads=threads, seed=seed, warm_start=warm)
+    res = solve_window(
+        current,
+        layout,
+        ~rules.fixed,
+        rules,
+        time_limit=time_limit,
+        threads=threads,
+        seed=seed,
+        warm_start=warm,
+    )
     details["milp_s"] = res.seconds
     if res.status == "infeasible":
         return "infeasible", None

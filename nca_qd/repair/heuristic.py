@@ -16,7 +16,8 @@ first and the endpoints after it:
 
 A layout family's :class:`~nca_qd.layouts.base.Construction` says which anchors and which mode:
 an exact count (the warehouse's N_s shelves), or anchors added while that saves distance, then
-each kind made to occur (manufacturing's stations). The result is valid by construction (the validator checks it),
+each kind made to occur (manufacturing's stations). The result is valid by construction (the
+validator checks it),
 not optimal: :mod:`nca_qd.repair.neighbourhood` improves it with exact window MILPs.
 """
 
@@ -37,8 +38,9 @@ _RING_IS_FOUR = (False, True, False, True, False, True, False, True)
 class _State:
     """Anchor set under construction with the counters the greedy needs."""
 
-    def __init__(self, layout_in: np.ndarray, rules: Rules, anchors: tuple[int, ...],
-                 endpoint: int, empty: int):
+    def __init__(
+        self, layout_in: np.ndarray, rules: Rules, anchors: tuple[int, ...], endpoint: int, empty: int
+    ):
         self.h, self.w = layout_in.shape
         self.x_in = layout_in
         self.rules = rules
@@ -60,8 +62,11 @@ class _State:
                 yield rr, cc
 
     def free_passable_nbrs(self, r: int, c: int, exclude: tuple[int, int] | None = None) -> int:
-        return sum(1 for rr, cc in self.nbrs(r, c)
-                   if self.free[rr, cc] and self.passable[rr, cc] and (rr, cc) != exclude)
+        return sum(
+            1
+            for rr, cc in self.nbrs(r, c)
+            if self.free[rr, cc] and self.passable[rr, cc] and (rr, cc) != exclude
+        )
 
     def gain(self, r: int, c: int, kind: int) -> float:
         """Estimated drop of the weighted distance if ``(r, c)`` becomes an anchor of ``kind``."""
@@ -88,8 +93,10 @@ class _State:
         if self.free_passable_nbrs(r, c) == 0:
             return False
         for rr, cc in self.nbrs(r, c):
-            if int(self.tile[rr, cc]) in self.anchor_tiles and \
-                    self.free_passable_nbrs(rr, cc, exclude=(r, c)) == 0:
+            if (
+                int(self.tile[rr, cc]) in self.anchor_tiles
+                and self.free_passable_nbrs(rr, cc, exclude=(r, c)) == 0
+            ):
                 return False
         # Traversable 4-neighbours must lie on one run of traversable ring cells.
         ring = []
@@ -178,8 +185,9 @@ def _greedy(state: _State, kind_of, n_target: int | None, max_anchors: int) -> i
     return added
 
 
-def fixed_count_layout(layout_in: np.ndarray, rules: Rules, shelf: int, endpoint: int, empty: int,
-                       n_shelves: int) -> np.ndarray | None:
+def fixed_count_layout(
+    layout_in: np.ndarray, rules: Rules, shelf: int, endpoint: int, empty: int, n_shelves: int
+) -> np.ndarray | None:
     """A valid layout near ``layout_in`` with exactly ``n_shelves`` anchors of tile ``shelf``
     (the warehouse's shelves; None if none found)."""
     state = _State(layout_in, rules, (shelf,), endpoint, empty)
@@ -189,8 +197,9 @@ def fixed_count_layout(layout_in: np.ndarray, rules: Rules, shelf: int, endpoint
     return state.finish()
 
 
-def balanced_kinds_layout(layout_in: np.ndarray, rules: Rules, stations: tuple[int, ...],
-                          endpoint: int, empty: int, n_agents: int) -> np.ndarray | None:
+def balanced_kinds_layout(
+    layout_in: np.ndarray, rules: Rules, stations: tuple[int, ...], endpoint: int, empty: int, n_agents: int
+) -> np.ndarray | None:
     """A valid layout near ``layout_in`` with anchors of every kind in ``stations`` and at least
     ``n_agents`` traversable tiles (manufacturing's stations; None if none found)."""
     state = _State(layout_in, rules, stations, endpoint, empty)
@@ -240,8 +249,9 @@ def balanced_kinds_layout(layout_in: np.ndarray, rules: Rules, stations: tuple[i
     return state.finish()
 
 
-def greedy_layout(layout_in: np.ndarray, rules: Rules, construction: Construction,
-                  n_agents: int) -> np.ndarray | None:
+def greedy_layout(
+    layout_in: np.ndarray, rules: Rules, construction: Construction, n_agents: int
+) -> np.ndarray | None:
     """The greedy construction a layout family's :class:`Construction` asks for: exactly the
     count its rules fix for the anchors (warehouse shelves), or anchors while they save distance
     with every kind present and ``n_agents`` traversable tiles left (manufacturing)."""

@@ -152,13 +152,13 @@ def solve_window(
             cost[xcol(i, k)] = -wgt
     lower = np.zeros(n_cols)
     upper = np.ones(n_cols)
-    upper[f0:f0 + n_f] = big_n
+    upper[f0 : f0 + n_f] = big_n
     if use_source_vars:
-        upper[s0:s0 + n] = big_n
+        upper[s0 : s0 + n] = big_n
     integrality = np.zeros(n_cols, dtype=np.int32)
     integrality[:n_x] = 1
     if use_source_vars:
-        integrality[y0:y0 + n] = 1
+        integrality[y0 : y0 + n] = 1
 
     rows = _Rows()
     # One tile per cell.
@@ -168,8 +168,9 @@ def solve_window(
     for e, (a, b) in enumerate(edges):
         for node in (a, b):
             if node < n:
-                rows.add([f0 + e] + [xcol(node, k) for k in pass_k],
-                         [1.0] + [-big_n] * len(pass_k), -inf, 0.0)
+                rows.add(
+                    [f0 + e] + [xcol(node, k) for k in pass_k], [1.0] + [-big_n] * len(pass_k), -inf, 0.0
+                )
     # Conservation: in - out (+ supply) = demand.
     inc: list[list[int]] = [[] for _ in range(n_nodes)]
     out: list[list[int]] = [[] for _ in range(n_nodes)]
@@ -252,17 +253,32 @@ def solve_window(
     hs.setOptionValue("mip_rel_gap", 0.0)
     # Integer weights: a gap below 1 proves optimality.
     hs.setOptionValue("mip_abs_gap", 0.999)
-    hs.addCols(n_cols, cost, lower, upper, 0, np.array([], dtype=np.int32),
-               np.array([], dtype=np.int32), np.array([], dtype=np.float64))
+    hs.addCols(
+        n_cols,
+        cost,
+        lower,
+        upper,
+        0,
+        np.array([], dtype=np.int32),
+        np.array([], dtype=np.int32),
+        np.array([], dtype=np.float64),
+    )
     hs.changeColsIntegrality(n_cols, np.arange(n_cols, dtype=np.int32), integrality)
     n_rows = len(rows.lower)
-    hs.addRows(n_rows, np.array(rows.lower), np.array(rows.upper), len(rows.index),
-               np.array(rows.starts, dtype=np.int32), np.array(rows.index, dtype=np.int32),
-               np.array(rows.value, dtype=np.float64))
+    hs.addRows(
+        n_rows,
+        np.array(rows.lower),
+        np.array(rows.upper),
+        len(rows.index),
+        np.array(rows.starts, dtype=np.int32),
+        np.array(rows.index, dtype=np.int32),
+        np.array(rows.value, dtype=np.float64),
+    )
     hs.changeObjectiveOffset(offset)
     if warm_start:
-        start = _warm_start(current, cells, cid, edges, n, n_nodes, source, free, rules, K, n_cols,
-                            f0, y0, s0)
+        start = _warm_start(
+            current, cells, cid, edges, n, n_nodes, source, free, rules, K, n_cols, f0, y0, s0
+        )
         if start is not None:
             sol = highspy.HighsSolution()
             sol.col_value = list(start)

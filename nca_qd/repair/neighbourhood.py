@@ -20,13 +20,13 @@ by construction); what is given up is the proof of global optimality. The result
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
-from nca_qd.repair.milp import solve_window
 from nca_qd.layouts.rules import Rules, dilate
+from nca_qd.repair.milp import solve_window
 from nca_qd.repair.validator import is_valid, violation_mask
 
 Heuristic = Callable[[np.ndarray], "np.ndarray | None"]
@@ -61,7 +61,7 @@ def _square(shape: tuple[int, int], r: int, c: int, side: int) -> np.ndarray:
     r0 = min(max(0, r - side // 2), max(0, h - side))
     c0 = min(max(0, c - side // 2), max(0, w - side))
     box = np.zeros(shape, dtype=bool)
-    box[r0:r0 + side, c0:c0 + side] = True
+    box[r0 : r0 + side, c0 : c0 + side] = True
     return box
 
 
@@ -127,9 +127,16 @@ def repair_neighbourhood(
             # counts: it is infeasible without a solve (search layouts: a near-empty storage
             # area has 1-3 local violations but needs 240 shelves).
             if win.sum() >= bound or whole:
-                res = solve_window(layout_in, layout_in, win, rules,
-                                   time_limit=min(left(), window_time), threads=threads,
-                                   seed=seed, warm_start=False)
+                res = solve_window(
+                    layout_in,
+                    layout_in,
+                    win,
+                    rules,
+                    time_limit=min(left(), window_time),
+                    threads=threads,
+                    seed=seed,
+                    warm_start=False,
+                )
                 if res.layout is not None and is_valid(res.layout, rules):
                     candidates.append(res.layout)
                     break
@@ -165,11 +172,24 @@ def repair_neighbourhood(
             budget, nodes = max(0.05, stop - time.perf_counter()), WINDOW_NODES
         else:
             budget, nodes = max(0.05, min(window_time / 4, stop - time.perf_counter())), None
-        res = solve_window(best, layout_in, box, rules, time_limit=budget, threads=threads,
-                           seed=seed, warm_start=True, max_nodes=nodes)
+        res = solve_window(
+            best,
+            layout_in,
+            box,
+            rules,
+            time_limit=budget,
+            threads=threads,
+            seed=seed,
+            warm_start=True,
+            max_nodes=nodes,
+        )
         n_windows += 1
-        if res.layout is not None and res.objective is not None and res.objective < before - 0.5 \
-                and is_valid(res.layout, rules):
+        if (
+            res.layout is not None
+            and res.objective is not None
+            and res.objective < before - 0.5
+            and is_valid(res.layout, rules)
+        ):
             best = res.layout
             cost = weighted_distance(best, layout_in, weights)
         else:

@@ -40,8 +40,13 @@ def violations(layout: np.ndarray, rules: Rules, limit: int = 20) -> list[Violat
     out: list[Violation] = []
     tiles = rules.tiles
     if layout.shape != rules.shape:
-        return [Violation("shape", None, f"layout is {layout.shape[0]}x{layout.shape[1]}, "
-                          f"expected {rules.shape[0]}x{rules.shape[1]}")]
+        return [
+            Violation(
+                "shape",
+                None,
+                f"layout is {layout.shape[0]}x{layout.shape[1]}, expected {rules.shape[0]}x{rules.shape[1]}",
+            )
+        ]
     if layout.min() < 0 or layout.max() >= len(tiles):
         return [Violation("alphabet", None, "tile index outside the alphabet")]
 
@@ -49,14 +54,20 @@ def violations(layout: np.ndarray, rules: Rules, limit: int = 20) -> list[Violat
     if rules.fixed_layout is not None:
         bad = rules.fixed & (layout != rules.fixed_layout)
         for r, c in np.argwhere(bad)[:limit]:
-            out.append(Violation("fixed", (int(r), int(c)),
-                                 f"fixed tile changed at ({r}, {c}): {tiles[layout[r, c]]!r}, "
-                                 f"must be {tiles[rules.fixed_layout[r, c]]!r}"))
+            out.append(
+                Violation(
+                    "fixed",
+                    (int(r), int(c)),
+                    f"fixed tile changed at ({r}, {c}): {tiles[layout[r, c]]!r}, "
+                    f"must be {tiles[rules.fixed_layout[r, c]]!r}",
+                )
+            )
     free = ~rules.fixed
     bad_free = free & ~np.isin(layout, list(rules.free_tiles))
     for r, c in np.argwhere(bad_free)[:limit]:
-        out.append(Violation("alphabet", (int(r), int(c)),
-                             f"tile {tiles[layout[r, c]]!r} not allowed at ({r}, {c})"))
+        out.append(
+            Violation("alphabet", (int(r), int(c)), f"tile {tiles[layout[r, c]]!r} not allowed at ({r}, {c})")
+        )
 
     # (connectivity) passable tiles form one 4-connected component; reach-only tiles touch it.
     passable = rules.passable_mask(layout)
@@ -69,22 +80,33 @@ def violations(layout: np.ndarray, rules: Rules, limit: int = 20) -> list[Violat
             if k == main or len(out) >= 4 * limit:
                 continue
             r, c = _cell(labels == k)
-            out.append(Violation("connectivity", (r, c),
-                                 f"tile ({r}, {c}) cannot reach ({anchor[0]}, {anchor[1]}) "
-                                 f"({n_comp} separate traversable regions)"))
+            out.append(
+                Violation(
+                    "connectivity",
+                    (r, c),
+                    f"tile ({r}, {c}) cannot reach ({anchor[0]}, {anchor[1]}) "
+                    f"({n_comp} separate traversable regions)",
+                )
+            )
     if rules.reach_only:
         reach = np.isin(layout, list(rules.reach_only)) & ~has_neighbour_in(passable)
         for r, c in np.argwhere(reach)[:limit]:
-            out.append(Violation("connectivity", (int(r), int(c)),
-                                 f"{tiles[layout[r, c]]!r} at ({r}, {c}) is unreachable"))
+            out.append(
+                Violation(
+                    "connectivity", (int(r), int(c)), f"{tiles[layout[r, c]]!r} at ({r}, {c}) is unreachable"
+                )
+            )
 
     # (adjacency) every A tile has a B 4-neighbour.
     for rule in rules.adjacency:
         has_b = has_neighbour_in(np.isin(layout, list(rule.needs)))
         bad = np.isin(layout, list(rule.tiles)) & ~has_b
         for r, c in np.argwhere(bad)[:limit]:
-            out.append(Violation("adjacency", (int(r), int(c)),
-                                 f"{rule.name}: {tiles[layout[r, c]]!r} at ({r}, {c})"))
+            out.append(
+                Violation(
+                    "adjacency", (int(r), int(c)), f"{rule.name}: {tiles[layout[r, c]]!r} at ({r}, {c})"
+                )
+            )
 
     # (counts)
     for rule in rules.counts:

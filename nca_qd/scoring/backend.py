@@ -21,10 +21,11 @@ from __future__ import annotations
 import logging
 import multiprocessing
 import os
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
-from typing import Any, Callable, Iterable, Mapping, Sequence
+from typing import Any
 
 from nca_qd.errors import NcaQdError
 
@@ -57,8 +58,7 @@ class LocalBackend:
 
     def _executor(self) -> ProcessPoolExecutor:
         if self._pool is None:
-            self._pool = ProcessPoolExecutor(self.workers,
-                                             mp_context=multiprocessing.get_context("spawn"))
+            self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"))
         return self._pool
 
     def map(self, fn: Callable, *args: Sequence[Any]) -> list[Any]:
@@ -142,14 +142,17 @@ class DaskBackend:
         try:
             from distributed import Client
         except ImportError:
-            raise NcaQdError("eval.scheduler needs Dask distributed: pip install "
-                             "'nca-qd[cluster]' (or dask distributed)") from None
+            raise NcaQdError(
+                "eval.scheduler needs Dask distributed: pip install 'nca-qd[cluster]' (or dask distributed)"
+            ) from None
         self.scheduler, self.retries = scheduler, int(retries)
         try:
             self.client = Client(scheduler, timeout=f"{connect_timeout_s}s")
         except (OSError, TimeoutError, ValueError) as exc:
-            raise NcaQdError(f"cannot reach the Dask scheduler at {scheduler}: "
-                             f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
+            raise NcaQdError(
+                f"cannot reach the Dask scheduler at {scheduler}: "
+                f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
+            ) from None
 
     def map(self, fn: Callable, *args: Sequence[Any]) -> list[Any]:
         jobs = list(zip(*args))

@@ -35,9 +35,10 @@ from __future__ import annotations
 import json
 import logging
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -53,9 +54,19 @@ from nca_qd.sim.rhcr import planner_options
 log = logging.getLogger(__name__)
 
 EXACT_POLICIES = ("selective", "all")
-METRIC_NAMES = ("n_valid", "n_exact", "exact_runs", "screen_bias", "screen_mae",
-                "repair_reused", "exact_reused",
-                "generate_seconds", "repair_seconds", "screen_seconds", "exact_seconds")
+METRIC_NAMES = (
+    "n_valid",
+    "n_exact",
+    "exact_runs",
+    "screen_bias",
+    "screen_mae",
+    "repair_reused",
+    "exact_reused",
+    "generate_seconds",
+    "repair_seconds",
+    "screen_seconds",
+    "exact_seconds",
+)
 
 
 @dataclass(frozen=True)
@@ -75,7 +86,7 @@ class ScoringConfig:
     planner: dict[str, Any] = field(default_factory=dict)
 
     @classmethod
-    def from_cfg(cls, cfg: Mapping[str, Any] | None) -> "ScoringConfig":
+    def from_cfg(cls, cfg: Mapping[str, Any] | None) -> ScoringConfig:
         cfg = dict(cfg or {})
         exact = str(cfg.get("exact", "selective"))
         if exact not in EXACT_POLICIES:
@@ -84,15 +95,19 @@ class ScoringConfig:
             if name in cfg and not isinstance(cfg[name], bool):
                 raise NcaQdError(f"eval.{name} must be true or false, got {cfg[name]!r}")
         screen = bool(cfg.get("screen", True))
-        out = cls(screen=screen, exact=exact if screen else "all",
-                  screen_scale=float(cfg.get("screen_scale", 1.3)),
-                  exact_margin=float(cfg.get("exact_margin", 0.1)),
-                  exact_random_share=float(cfg.get("exact_random_share", 0.1)),
-                  exact_time_limit_s=(None if cfg.get("exact_time_limit_s") is None
-                                      else float(cfg["exact_time_limit_s"])),
-                  screen_empty_cells=bool(cfg.get("screen_empty_cells", False)),
-                  memo=bool(cfg.get("memo", True)),
-                  planner=planner_options(cfg, "eval."))
+        out = cls(
+            screen=screen,
+            exact=exact if screen else "all",
+            screen_scale=float(cfg.get("screen_scale", 1.3)),
+            exact_margin=float(cfg.get("exact_margin", 0.1)),
+            exact_random_share=float(cfg.get("exact_random_share", 0.1)),
+            exact_time_limit_s=(
+                None if cfg.get("exact_time_limit_s") is None else float(cfg["exact_time_limit_s"])
+            ),
+            screen_empty_cells=bool(cfg.get("screen_empty_cells", False)),
+            memo=bool(cfg.get("memo", True)),
+            planner=planner_options(cfg, "eval."),
+        )
         if not 0.0 <= out.exact_random_share <= 1.0:
             raise NcaQdError(f"eval.exact_random_share must be in [0, 1], got {out.exact_random_share}")
         if out.screen_scale <= 0:
@@ -100,8 +115,9 @@ class ScoringConfig:
         return out
 
 
-def choose_exact(predicted: np.ndarray, elite: np.ndarray, valid: np.ndarray, cfg: ScoringConfig,
-                 rng: np.random.Generator) -> np.ndarray:
+def choose_exact(
+    predicted: np.ndarray, elite: np.ndarray, valid: np.ndarray, cfg: ScoringConfig, rng: np.random.Generator
+) -> np.ndarray:
     """Which layouts get exact runs: those that could enter the result archive, plus a random
     share of the others (``valid`` only)."""
     if cfg.exact == "all":
@@ -131,8 +147,9 @@ class MapfScorer:
         sim = dcfg["simulation"]
         self.T, self.n_runs = int(sim["T"]), int(sim["n_runs"])
         if self.T <= 0 or self.n_runs <= 0:
-            raise NcaQdError(f"domain.simulation needs T > 0 and n_runs > 0, got T={self.T}, "
-                             f"n_runs={self.n_runs}")
+            raise NcaQdError(
+                f"domain.simulation needs T > 0 and n_runs > 0, got T={self.T}, n_runs={self.n_runs}"
+            )
         self.n_agents = int(dcfg["n_agents"]["train"])
         alpha = run_cfg.get("alpha")
         self.alpha = float(dcfg["alpha"] if alpha is None else alpha)
@@ -142,25 +159,37 @@ class MapfScorer:
         # The simulator a checkpoint's archive was scored with (a resume under another is refused).
         self.simulator_version = f"rhcr {RHCR_VERSION}"
         # What remembered results depend on: a memo made under other settings is not used.
-        settings = {"domain": domain.name, "n_agents": self.n_agents, "T": self.T,
-                    "n_runs": self.n_runs, "repair": self.repair_opts,
-                    "exact_time_limit_s": self.cfg.exact_time_limit_s, "rhcr_version": RHCR_VERSION}
+        settings = {
+            "domain": domain.name,
+            "n_agents": self.n_agents,
+            "T": self.T,
+            "n_runs": self.n_runs,
+            "repair": self.repair_opts,
+            "exact_time_limit_s": self.cfg.exact_time_limit_s,
+            "rhcr_version": RHCR_VERSION,
+        }
         if self.cfg.planner:  # (absent when unset: memos of runs with the defaults stay valid)
             settings["planner"] = self.cfg.planner
         self.fingerprint = json.dumps(settings, sort_keys=True, default=str)
         self.memo: EvalMemo | None = EvalMemo(self.fingerprint) if self.cfg.memo else None
-        log.info("%s scoring: %s; screen %s, exact %s", domain.name, self.backend.describe(),
-                 "on" if self.cfg.screen else "off", self.cfg.exact)
+        log.info(
+            "%s scoring: %s; screen %s, exact %s",
+            domain.name,
+            self.backend.describe(),
+            "on" if self.cfg.screen else "off",
+            self.cfg.exact,
+        )
 
     # ------------------------------------------------------------------------------ stages
     def repair(self, layouts: np.ndarray) -> list[RepairOutcome]:
         jobs = [(self.domain.name, lay, self.repair_opts) for lay in layouts]
         out = map_jobs(self.backend, repair_task, jobs)
-        return [o if isinstance(o, RepairOutcome)
-                else RepairOutcome(None, "error", 0.0, None, 0.0, o.error) for o in out]
+        return [
+            o if isinstance(o, RepairOutcome) else RepairOutcome(None, "error", 0.0, None, 0.0, o.error)
+            for o in out
+        ]
 
-    def screen(self, rows: list[list[str]], seeds: list[int],
-               cap: int | None = None) -> np.ndarray:
+    def screen(self, rows: list[list[str]], seeds: list[int], cap: int | None = None) -> np.ndarray:
         """Mean screened throughput per layout ``[n]`` (NaN where the screen failed)."""
         from nca_qd.sim.scenario import build_scenario
         from nca_qd.sim.screen import simulate_scenarios
@@ -185,11 +214,24 @@ class MapfScorer:
 
     def exact(self, rows: list[list[str]], seeds: list[int]) -> np.ndarray:
         """Exact RHCR throughput per layout and seed ``[n, len(seeds)]`` (NaN where a run failed)."""
-        jobs = [(r, self.domain.name, self.n_agents, self.T, s, self.cfg.exact_time_limit_s,
-                 False, self.cfg.planner) for r in rows for s in seeds]
+        jobs = [
+            (
+                r,
+                self.domain.name,
+                self.n_agents,
+                self.T,
+                s,
+                self.cfg.exact_time_limit_s,
+                False,
+                self.cfg.planner,
+            )
+            for r in rows
+            for s in seeds
+        ]
         out = map_jobs(self.backend, rhcr_task, jobs)
-        tp = np.array([o.throughput if isinstance(o, ExactOutcome) and o.error is None else np.nan
-                       for o in out]).reshape(len(rows), len(seeds))
+        tp = np.array(
+            [o.throughput if isinstance(o, ExactOutcome) and o.error is None else np.nan for o in out]
+        ).reshape(len(rows), len(seeds))
         for o in out:
             err = o.error if isinstance(o, (ExactOutcome, JobFailed)) else None
             if err:
@@ -209,7 +251,8 @@ class MapfScorer:
         outcomes and how many came without a repair job of their own."""
         keys = [layout_key(lay) for lay in layouts]
         out: list[RepairOutcome | None] = [
-            self.memo.repair(k) if self.memo is not None else None for k in keys]
+            self.memo.repair(k) if self.memo is not None else None for k in keys
+        ]
         todo = [i for i, o in enumerate(out) if o is None]
         first, inverse = self._distinct([keys[i] for i in todo])
         fresh = self.repair(layouts[[todo[j] for j in first]]) if todo else []
@@ -220,8 +263,9 @@ class MapfScorer:
             out[i] = fresh[inverse[t]]
         return out, len(layouts) - len(first)  # type: ignore[return-value]
 
-    def _exact_batch(self, rows: list[list[str]], keys: list[bytes], seeds: list[int],
-                     iteration: int) -> tuple[np.ndarray, int]:
+    def _exact_batch(
+        self, rows: list[list[str]], keys: list[bytes], seeds: list[int], iteration: int
+    ) -> tuple[np.ndarray, int]:
         """Mean exact throughput per layout ``[n]``: one set of runs per distinct layout,
         remembered for the rest of the search. Also returns how many layouts were simulated."""
         first, inverse = self._distinct(keys)
@@ -231,8 +275,7 @@ class MapfScorer:
                 self.memo.put_exact(keys[j], runs, iteration)
         return tp.mean(axis=1)[inverse], len(first)
 
-    def _to_screen(self, valid: np.ndarray, elite: np.ndarray,
-                   rng: np.random.Generator) -> np.ndarray:
+    def _to_screen(self, valid: np.ndarray, elite: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Which valid layouts the screen runs on: all of them, or (by default) those whose
         result cell holds an elite plus a random share of the rest (exact runs follow for
         every empty cell anyway; the share keeps measuring the screen's error there)."""
@@ -273,8 +316,7 @@ class MapfScorer:
         for i, r in enumerate(repaired):
             if r.layout is None:
                 log.warning("repair of layout %d: %s%s", i, r.status, f" ({r.error})" if r.error else "")
-        fixed = np.stack([r.layout if r.layout is not None else layouts[i]
-                          for i, r in enumerate(repaired)])
+        fixed = np.stack([r.layout if r.layout is not None else layouts[i] for i, r in enumerate(repaired)])
         measures = np.asarray(self.domain.measures(fixed), dtype=np.float32)
         delta = np.array([r.similarity for r in repaired])
         rows = [array_to_rows(lay, tiles) if good else None for lay, good in zip(fixed, ok)]
@@ -287,8 +329,7 @@ class MapfScorer:
                 known[i] = np.nan if runs is None else runs.mean()
         fresh = ok & np.isnan(known)
 
-        elite = (np.asarray(context.result_elite(measures)) if context is not None
-                 else np.full(b, -np.inf))
+        elite = np.asarray(context.result_elite(measures)) if context is not None else np.full(b, -np.inf)
         to_screen = self._to_screen(fresh, elite, rng)
         t2 = time.perf_counter()
         screened = np.full(b, np.nan)
@@ -300,8 +341,7 @@ class MapfScorer:
         t_scr = time.perf_counter() - t2
         ok &= ~(to_screen & np.isnan(screened))
         predicted = screened * self.cfg.screen_scale
-        run_exact = choose_exact(np.nan_to_num(predicted, nan=-np.inf), elite, ok & fresh,
-                                 self.cfg, rng)
+        run_exact = choose_exact(np.nan_to_num(predicted, nan=-np.inf), elite, ok & fresh, self.cfg, rng)
 
         t3 = time.perf_counter()
         exact = known.copy()
@@ -309,7 +349,8 @@ class MapfScorer:
         n_simulated = 0  # distinct layouts given exact runs now
         if chosen.size:
             exact[chosen], n_simulated = self._exact_batch(
-                [rows[i] for i in chosen], [keys[i] for i in chosen], seeds, iteration)
+                [rows[i] for i in chosen], [keys[i] for i in chosen], seeds, iteration
+            )
         t_ex = time.perf_counter() - t3
         has_exact = ~np.isnan(exact)
         f = np.where(has_exact, exact, predicted)
@@ -319,21 +360,33 @@ class MapfScorer:
         both = has_exact & ~np.isnan(predicted)
         err = predicted[both] - exact[both]
         metrics = {
-            "n_valid": int(ok.sum()), "n_exact": int(has_exact.sum()),
+            "n_valid": int(ok.sum()),
+            "n_exact": int(has_exact.sum()),
             "exact_runs": n_simulated * self.n_runs,
             "screen_bias": float(err.mean()) if err.size else float("nan"),
             "screen_mae": float(np.abs(err).mean()) if err.size else float("nan"),
             "repair_reused": int(repair_reused),
             "exact_reused": int(np.isfinite(known).sum() + chosen.size - n_simulated),
-            "repair_seconds": t_rep, "screen_seconds": t_scr,
+            "repair_seconds": t_rep,
+            "screen_seconds": t_scr,
             "exact_seconds": t_ex,
         }
         return EvalBatch(
-            objective=f_opt.astype(np.float32), measures=measures,
-            result_objective=f_res.astype(np.float32), valid=ok, result_valid=ok & has_exact,
-            extras={"metrics": metrics, "repaired": fixed, "unrepaired": layouts,
-                    "similarity": delta, "screened": screened, "exact": exact,
-                    "repair_status": [r.status for r in repaired]})
+            objective=f_opt.astype(np.float32),
+            measures=measures,
+            result_objective=f_res.astype(np.float32),
+            valid=ok,
+            result_valid=ok & has_exact,
+            extras={
+                "metrics": metrics,
+                "repaired": fixed,
+                "unrepaired": layouts,
+                "similarity": delta,
+                "screened": screened,
+                "exact": exact,
+                "repair_status": [r.status for r in repaired],
+            },
+        )
 
     def close(self) -> None:
         self.backend.close()

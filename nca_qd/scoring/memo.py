@@ -19,8 +19,9 @@ from __future__ import annotations
 
 import hashlib
 import logging
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -98,8 +99,9 @@ class EvalMemo:
         shape = max(set(found), key=found.count) if found else (0, 0)
         # One run repairs one size; an entry of another shape (none in practice) is dropped
         # rather than stored wrongly: forgetting it only costs a repair.
-        reps = [(k, r, it) for k, (r, it) in self._repairs.items()
-                if r.layout is None or r.layout.shape == shape]
+        reps = [
+            (k, r, it) for k, (r, it) in self._repairs.items() if r.layout is None or r.layout.shape == shape
+        ]
         layouts = np.zeros((len(reps), *shape), dtype=np.int8)
         for i, (_, r, _) in enumerate(reps):
             if r.layout is not None:
@@ -113,12 +115,14 @@ class EvalMemo:
             "repair_found": np.asarray([r.layout is not None for _, r, _ in reps], dtype=bool),
             "repair_status": np.asarray([r.status for _, r, _ in reps], dtype=str),
             "repair_similarity": np.asarray([r.similarity for _, r, _ in reps], np.float64),
-            "repair_hamming": np.asarray([-1 if r.hamming is None else r.hamming
-                                          for _, r, _ in reps], np.int64),
+            "repair_hamming": np.asarray(
+                [-1 if r.hamming is None else r.hamming for _, r, _ in reps], np.int64
+            ),
             "repair_iteration": np.asarray([it for _, _, it in reps], np.int64),
             "exact_keys": _key_array([k for k, _, _ in exact]),
-            "exact_throughput": np.asarray([tp for _, tp, _ in exact],
-                                           np.float64).reshape(len(exact), n_runs),
+            "exact_throughput": np.asarray([tp for _, tp, _ in exact], np.float64).reshape(
+                len(exact), n_runs
+            ),
             "exact_iteration": np.asarray([it for _, _, it in exact], np.int64),
         }
 
@@ -127,8 +131,9 @@ class EvalMemo:
         save_npz(path, self.to_arrays())
 
     @classmethod
-    def from_arrays(cls, arrays: Mapping[str, Any], fingerprint: str,
-                    upto_iteration: int | None = None) -> "EvalMemo":
+    def from_arrays(
+        cls, arrays: Mapping[str, Any], fingerprint: str, upto_iteration: int | None = None
+    ) -> EvalMemo:
         """The memo saved in ``arrays``, keeping entries made up to ``upto_iteration`` (a
         resumed run's checkpoint); empty if it was written under another fingerprint."""
         memo = cls(fingerprint)
@@ -141,10 +146,12 @@ class EvalMemo:
             if keep(it):
                 ham = int(arrays["repair_hamming"][i])
                 rep = RepairOutcome(
-                    np.asarray(arrays["repair_layouts"][i], np.int32)
-                    if arrays["repair_found"][i] else None,
-                    str(arrays["repair_status"][i]), float(arrays["repair_similarity"][i]),
-                    None if ham < 0 else ham, seconds=0.0)
+                    np.asarray(arrays["repair_layouts"][i], np.int32) if arrays["repair_found"][i] else None,
+                    str(arrays["repair_status"][i]),
+                    float(arrays["repair_similarity"][i]),
+                    None if ham < 0 else ham,
+                    seconds=0.0,
+                )
                 memo._repairs[np.asarray(key, np.uint8).tobytes()] = (rep, it)
         for i, key in enumerate(arrays["exact_keys"]):
             it = int(arrays["exact_iteration"][i])
@@ -154,16 +161,14 @@ class EvalMemo:
         return memo
 
     @classmethod
-    def load(cls, path: str | Path, fingerprint: str,
-             upto_iteration: int | None = None) -> "EvalMemo":
+    def load(cls, path: str | Path, fingerprint: str, upto_iteration: int | None = None) -> EvalMemo:
         """Read ``path`` (a missing or unreadable file gives an empty memo: it only saves time)."""
         path = Path(path)
         if not path.is_file():
             return cls(fingerprint)
         try:
             with np.load(path) as data:
-                return cls.from_arrays({k: data[k] for k in data.files}, fingerprint,
-                                       upto_iteration)
+                return cls.from_arrays({k: data[k] for k in data.files}, fingerprint, upto_iteration)
         except (OSError, ValueError, KeyError) as exc:
             log.warning("%s: unreadable evaluation memo (%s); starting a new one", path, exc)
             return cls(fingerprint)

@@ -9,15 +9,26 @@ layout must not stop a QD run (it is recorded as failed and the run goes on).
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
 # The domain config's repair keys that :func:`nca_qd.repair.repair` takes as options.
-REPAIR_OPTIONS = ("method", "time_limit_s", "improve_time_s", "improve_windows", "window",
-                  "window_time_s", "max_window_cells", "max_violation_fraction", "threads", "seed",
-                  "milp_time_s")
+REPAIR_OPTIONS = (
+    "method",
+    "time_limit_s",
+    "improve_time_s",
+    "improve_windows",
+    "window",
+    "window_time_s",
+    "max_window_cells",
+    "max_violation_fraction",
+    "threads",
+    "seed",
+    "milp_time_s",
+)
 
 
 def repair_options(domain_cfg: Mapping[str, Any], which: str = "train") -> dict[str, Any]:
@@ -79,18 +90,31 @@ class ExactOutcome:
     error: str | None = None
 
 
-def rhcr_task(rows: list[str], scenario: str, n_agents: int, T: int, seed: int,
-              time_limit_s: float | None = None, detail: bool = False,
-              planner: Mapping[str, Any] | None = None) -> ExactOutcome:
+def rhcr_task(
+    rows: list[str],
+    scenario: str,
+    n_agents: int,
+    T: int,
+    seed: int,
+    time_limit_s: float | None = None,
+    detail: bool = False,
+    planner: Mapping[str, Any] | None = None,
+) -> ExactOutcome:
     """One exact RHCR run; ``detail`` adds tasks per timestep and tile visits; ``planner``
     holds validated planner knobs (:func:`nca_qd.sim.rhcr.planner_options`)."""
     from nca_qd.errors import NcaQdError
     from nca_qd.sim.rhcr import simulate
 
     try:
-        r = simulate(rows, scenario, n_agents, T, seed, time_limit_s=time_limit_s,
-                     **dict(planner or {}))
+        r = simulate(rows, scenario, n_agents, T, seed, time_limit_s=time_limit_s, **dict(planner or {}))
     except NcaQdError as exc:
         return ExactOutcome(seed, 0.0, False, 0, 0.0, error=str(exc))
-    return ExactOutcome(seed, r.throughput, r.success, r.stop_time, r.cpu_seconds,
-                        r.tasks_per_step if detail else None, r.tile_visits if detail else None)
+    return ExactOutcome(
+        seed,
+        r.throughput,
+        r.success,
+        r.stop_time,
+        r.cpu_seconds,
+        r.tasks_per_step if detail else None,
+        r.tile_visits if detail else None,
+    )

@@ -23,8 +23,8 @@ Rules checked:
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 
@@ -78,8 +78,7 @@ def check_moves(paths: np.ndarray, traversable: np.ndarray) -> None:
     step = np.abs(np.diff(r, axis=0)) + np.abs(np.diff(c, axis=0))
     if (step > 1).any():
         t, a = np.argwhere(step > 1)[0]
-        raise CheckError(f"agent {a} jumps from {_rc(paths[t, a])} to {_rc(paths[t + 1, a])} "
-                         f"at time {t + 1}")
+        raise CheckError(f"agent {a} jumps from {_rc(paths[t, a])} to {_rc(paths[t + 1, a])} at time {t + 1}")
     cell = r * w + c
     # Vertex conflicts: a repeated cell within one timestep.
     srt = np.sort(cell, axis=1)
@@ -87,8 +86,9 @@ def check_moves(paths: np.ndarray, traversable: np.ndarray) -> None:
     if dup.any():
         t, k = np.argwhere(dup)[0]
         agents = np.flatnonzero(cell[t] == srt[t, k])
-        raise CheckError(f"vertex conflict at time {t}: agents {agents.tolist()} on "
-                         f"{divmod(int(srt[t, k]), w)}")
+        raise CheckError(
+            f"vertex conflict at time {t}: agents {agents.tolist()} on {divmod(int(srt[t, k]), w)}"
+        )
     # Swap conflicts: two moving agents on the same undirected edge in the same step (without
     # vertex conflicts this can only be a swap).
     src, dst = cell[:-1], cell[1:]
@@ -104,8 +104,7 @@ def check_moves(paths: np.ndarray, traversable: np.ndarray) -> None:
             bad = uniq[counts > 1][0]
             agents = a_idx[key == bad]
             t = int(t_idx[key == bad][0])
-            raise CheckError(f"swap conflict between agents {agents.tolist()} in the step to "
-                             f"time {t + 1}")
+            raise CheckError(f"swap conflict between agents {agents.tolist()} in the step to time {t + 1}")
 
 
 def check_goals(goals: Sequence[np.ndarray], rows: Sequence[str], scenario: str) -> None:
@@ -121,14 +120,22 @@ def check_goals(goals: Sequence[np.ndarray], rows: Sequence[str], scenario: str)
             if not (0 <= r < h and 0 <= c < w):
                 raise CheckError(f"agent {a}: goal {(r, c)} off the map")
             tile = grid[r, c]
-            near = {grid[rr, cc] for rr, cc in ((r - 1, c), (r + 1, c), (r, c - 1), (r, c + 1))
-                    if 0 <= rr < h and 0 <= cc < w}
-            fits = {k for k, g in enumerate(goal_kinds)
-                    if g.tile == tile and g.dwell == dwell and (g.next_to is None or g.next_to in near)}
+            near = {
+                grid[rr, cc]
+                for rr, cc in ((r - 1, c), (r + 1, c), (r, c - 1), (r, c + 1))
+                if 0 <= rr < h and 0 <= cc < w
+            }
+            fits = {
+                k
+                for k, g in enumerate(goal_kinds)
+                if g.tile == tile and g.dwell == dwell and (g.next_to is None or g.next_to in near)
+            }
             if not fits:
-                raise CheckError(f"agent {a}: goal {(r, c)} is {tile!r} with dwell {dwell}: no "
-                                 f"matching kind of goal in {scenario} "
-                                 f"({', '.join(g.name for g in goal_kinds)})")
+                raise CheckError(
+                    f"agent {a}: goal {(r, c)} is {tile!r} with dwell {dwell}: no "
+                    f"matching kind of goal in {scenario} "
+                    f"({', '.join(g.name for g in goal_kinds)})"
+                )
             options.append(fits)
         # The kinds must follow the cycle: some start kind explains the whole sequence.
         possible = set(options[0]) if options else set()
@@ -137,8 +144,9 @@ def check_goals(goals: Sequence[np.ndarray], rows: Sequence[str], scenario: str)
             if not possible:
                 prev = " or ".join(goal_kinds[k].name for k in sorted(options[i - 1]))
                 nxt = " or ".join(goal_kinds[k].name for k in sorted(fits))
-                raise CheckError(f"agent {a}: goal kind {nxt} may not follow {prev} "
-                                 f"(goal {i} of its sequence)")
+                raise CheckError(
+                    f"agent {a}: goal kind {nxt} may not follow {prev} (goal {i} of its sequence)"
+                )
 
 
 def recount_tasks(paths: np.ndarray, goals: Sequence[np.ndarray]) -> np.ndarray:
@@ -148,8 +156,8 @@ def recount_tasks(paths: np.ndarray, goals: Sequence[np.ndarray]) -> np.ndarray:
     done = np.zeros(steps, dtype=np.int64)
     for a, seq in enumerate(goals):
         seq = [tuple(g) for g in np.asarray(seq).tolist()]
-        k = 0          # index of the goal being worked on
-        since = None   # time of arrival on goal k's cell, while staying there
+        k = 0  # index of the goal being worked on
+        since = None  # time of arrival on goal k's cell, while staying there
         track = paths[:, a, :].tolist()
         for t in range(1, steps + 1):
             pos = tuple(track[t])
@@ -183,12 +191,14 @@ def check_run(result, rows: Sequence[str], scenario: str | None = None) -> Check
     check_goals(result.goals, rows, scenario)
     recount = recount_tasks(paths, result.goals)
     claimed = np.asarray(result.tasks_per_step)
-    if claimed.shape[0] != result.T or claimed[result.stop_time:].any():
+    if claimed.shape[0] != result.T or claimed[result.stop_time :].any():
         raise CheckError("tasks_per_step must have T entries, zero after the stop time")
     if not np.array_equal(recount, claimed[: result.stop_time]):
         t = int(np.flatnonzero(recount != claimed[: result.stop_time])[0])
-        raise CheckError(f"finished tasks differ at time {t + 1}: recounted {recount[t]}, "
-                         f"simulator says {claimed[t]} (total {recount.sum()} vs {claimed.sum()})")
+        raise CheckError(
+            f"finished tasks differ at time {t + 1}: recounted {recount[t]}, "
+            f"simulator says {claimed[t]} (total {recount.sum()} vs {claimed.sum()})"
+        )
     total = int(recount.sum())
     if not np.isclose(result.throughput, total / result.T):
         raise CheckError(f"throughput {result.throughput} != {total} / {result.T}")

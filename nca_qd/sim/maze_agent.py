@@ -32,13 +32,15 @@ The registry :data:`POLICIES` names every kind a config may choose (``domain.age
 two rule-based policies, ``shortest_path`` and ``wall_follower`` (documented at their
 constructors), and ``learned``, the trained agent of :mod:`nca_qd.agent`, named by module path
 and imported only when chosen (so this module depends on no agent package; the agent package
-depends on this one). :func:`register_policy` adds more at run time. :func:`rollout` runs ``E`` episodes of one maze (vmapped over episodes, one
+depends on this one). :func:`register_policy` adds more at run time. :func:`rollout` runs ``E``
+episodes of one maze (vmapped over episodes, one
 ``lax.while_loop`` over time that stops when every episode is done); vmap it over mazes.
 """
 
 from __future__ import annotations
 
-from typing import Any, Callable, NamedTuple
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -253,7 +255,8 @@ def wall_follower_policy() -> Policy:
         walk_action = jnp.where(front_free, FORWARD, away)
         # Phase 2 (following).
         follow_action = jnp.where(
-            memory.just_turned, FORWARD,
+            memory.just_turned,
+            FORWARD,
             jnp.where(hand_free, toward, jnp.where(front_free, FORWARD, away)),
         )
         following = memory.following
@@ -317,22 +320,47 @@ def _episode_step(policy: Policy, env: MazeEnv, state, memory, k_steps, t):
     return state, memory
 
 
-def rollout(policy: Policy, layout: jax.Array, start: jax.Array, goal: jax.Array, key: jax.Array,
-            episodes: int, horizon: int, active: jax.Array | bool = True,
-            detect_cycles: bool = True) -> Rollout:
+def rollout(
+    policy: Policy,
+    layout: jax.Array,
+    start: jax.Array,
+    goal: jax.Array,
+    key: jax.Array,
+    episodes: int,
+    horizon: int,
+    active: jax.Array | bool = True,
+    detect_cycles: bool = True,
+) -> Rollout:
     """Run ``episodes`` episodes of one maze (jit-able). See :func:`rollout_batch` for many mazes.
 
     Episode ``i`` uses ``jax.random.split(key, episodes)[i]``. With ``active`` False nothing is
     simulated and every episode counts the horizon (mazes without a start-goal path).
     """
-    res = rollout_batch(policy, layout[None], jnp.asarray(start)[None], jnp.asarray(goal)[None],
-                        key[None], episodes, horizon, jnp.asarray(active)[None], detect_cycles)
+    res = rollout_batch(
+        policy,
+        layout[None],
+        jnp.asarray(start)[None],
+        jnp.asarray(goal)[None],
+        key[None],
+        episodes,
+        horizon,
+        jnp.asarray(active)[None],
+        detect_cycles,
+    )
     return Rollout(res.lengths[0], res.reached[0])
 
 
-def rollout_batch(policy: Policy, layouts: jax.Array, starts: jax.Array, goals: jax.Array,
-                  keys: jax.Array, episodes: int, horizon: int,
-                  active: jax.Array | None = None, detect_cycles: bool = True) -> Rollout:
+def rollout_batch(
+    policy: Policy,
+    layouts: jax.Array,
+    starts: jax.Array,
+    goals: jax.Array,
+    keys: jax.Array,
+    episodes: int,
+    horizon: int,
+    active: jax.Array | None = None,
+    detect_cycles: bool = True,
+) -> Rollout:
     """:func:`rollout` of ``B`` mazes at once: ``layouts [B, H, W]``, ``starts``/``goals`` ``[B, 2]``,
     ``keys [B]``, ``active [B]`` -> lengths and reached ``[B, episodes]``.
 
@@ -373,8 +401,10 @@ def rollout_batch(policy: Policy, layouts: jax.Array, starts: jax.Array, goals: 
         lengths = jnp.where(reached, t + 1, lengths)
         done, hit = done | reached, hit | reached
         if detect:
-            same = [jnp.all((a == b).reshape(a.shape[:2] + (-1,)), axis=-1)
-                    for a, b in zip(jax.tree.leaves((state, memory)), jax.tree.leaves(saved))]
+            same = [
+                jnp.all((a == b).reshape(a.shape[:2] + (-1,)), axis=-1)
+                for a, b in zip(jax.tree.leaves((state, memory)), jax.tree.leaves(saved))
+            ]
             done = done | jnp.all(jnp.stack(same), axis=0)  # a cycle: never reaches the goal
             t1 = t + 1
             checkpoint = (t1 & (t1 - 1)) == 0  # t + 1 is a power of two
@@ -387,8 +417,15 @@ def rollout_batch(policy: Policy, layouts: jax.Array, starts: jax.Array, goals: 
     return Rollout(lengths, hit)
 
 
-def record_episode(policy: Policy, layout: jax.Array, start: jax.Array, goal: jax.Array,
-                   key: jax.Array, episodes: int, horizon: int):
+def record_episode(
+    policy: Policy,
+    layout: jax.Array,
+    start: jax.Array,
+    goal: jax.Array,
+    key: jax.Array,
+    episodes: int,
+    horizon: int,
+):
     """Positions ``[horizon + 1, 2]`` and directions ``[horizon + 1]`` of episode 0 of
     :func:`rollout` (same key derivation); after the goal the agent stays on it. Also returns
     the episode length."""

@@ -36,6 +36,11 @@ class RunResult:
 
     def summary(self) -> dict:
         """The per-run figures printed by ``experiments.simulate`` (JSON-friendly)."""
-        return {"seed": self.seed, "throughput": self.throughput, "success": self.success,
-                "stop_time": self.stop_time, "cpu_seconds": round(self.cpu_seconds, 3),
-                "timed_out": self.timed_out}
+        return {
+            "seed": self.seed,
+            "throughput": self.throughput,
+            "success": self.success,
+            "stop_time": self.stop_time,
+            "cpu_seconds": round(self.cpu_seconds, 3),
+            "timed_out": self.timed_out,
+        }

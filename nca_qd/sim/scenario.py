@@ -72,8 +72,9 @@ def check_name(scenario: str) -> None:
     get_layout(scenario, "scenario")
 
 
-def build_scenario(rows: list[str] | tuple[str, ...], scenario: str, n_agents: int | None = None,
-                   source: str = "layout") -> Scenario:
+def build_scenario(
+    rows: list[str] | tuple[str, ...], scenario: str, n_agents: int | None = None, source: str = "layout"
+) -> Scenario:
     """Validate ``rows`` for ``scenario`` and derive traversable tiles and goal classes.
 
     ``n_agents`` (if given) is checked against the number of traversable tiles.
@@ -97,9 +98,11 @@ def build_scenario(rows: list[str] | tuple[str, ...], scenario: str, n_agents: i
         cells = np.flatnonzero(where).astype(np.int32)
         if cells.size == 0:
             near = f" next to a {kind.next_to!r} tile" if kind.next_to is not None else ""
-            raise NcaQdError(f"{source}: no {kind.name} goal: no {kind.tile!r} tile{near} "
-                             f"({scenario} needs one for each of "
-                             f"{', '.join(g.name for g in task.goals)})")
+            raise NcaQdError(
+                f"{source}: no {kind.name} goal: no {kind.tile!r} tile{near} "
+                f"({scenario} needs one for each of "
+                f"{', '.join(g.name for g in task.goals)})"
+            )
         weights = np.where(left[cells], kind.left_weight, 1.0)
         classes.append(GoalClass(kind.name, cells, weights, kind.dwell))
     cycle = tuple(range(len(task.goals)))
@@ -144,6 +147,8 @@ def _check_connected(traversable: np.ndarray, source: str) -> None:
     cut_off = np.argwhere(traversable & ~seen)
     if cut_off.size:
         r, c = cut_off[0]
-        raise NcaQdError(f"{source}: traversable tiles are not all connected (tile at row {r}, "
-                         f"column {c} cannot be reached from row {start[0]}, column {start[1]}), "
-                         "so some goal is unreachable for some agent")
+        raise NcaQdError(
+            f"{source}: traversable tiles are not all connected (tile at row {r}, "
+            f"column {c} cannot be reached from row {start[0]}, column {start[1]}), "
+            "so some goal is unreachable for some agent"
+        )

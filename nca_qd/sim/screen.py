@@ -50,9 +50,10 @@ from __future__ import annotations
 import math
 import os
 import time
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import NamedTuple, Sequence
+from typing import NamedTuple
 
 import numpy as np
 
@@ -60,12 +61,19 @@ from nca_qd.errors import NcaQdError
 from nca_qd.sim.result import RunResult
 from nca_qd.sim.scenario import Scenario, build_scenario
 
-__all__ = ["ScreenResult", "LayoutArrays", "simulate", "simulate_batch", "simulate_scenarios",
-           "prepare", "goal_log"]
+__all__ = [
+    "ScreenResult",
+    "LayoutArrays",
+    "simulate",
+    "simulate_batch",
+    "simulate_scenarios",
+    "prepare",
+    "goal_log",
+]
 
 INF16 = 30000  # "unreachable" in the int16 distance table
-PRIORITY = "random"   # "random": fresh random agent order each step; "age": PIBT's (steps
-                      # since the last finished goal, fixed random tie-break)
+PRIORITY = "random"  # "random": fresh random agent order each step; "age": PIBT's (steps
+# since the last finished goal, fixed random tie-break)
 # "crowding" congestion (default): RHCR's rule, or, from the CROWD_MIN_CHECKS-th check on, a
 # mean since the start of >= CROWD_MEAN agents in the most crowded DENSITY_K x DENSITY_K block
 # at each check -- a proxy for the dense jams in which RHCR's windowed PBS collapses and PIBT
@@ -76,15 +84,15 @@ DENSITY_K = 5
 CROWD_MEAN = 17
 CROWD_MIN_CHECKS = 10
 CONGESTION = "crowding"  # or "moved" (RHCR's rule alone), or "progress" (more than half
-                         # neither finished a goal, dwelt, nor ended the h steps closer to it)
-DRAW_ROUND = 32     # at least this many new goals are drawn per round (see draw_done)
+# neither finished a goal, dwelt, nor ended the h steps closer to it)
+DRAW_ROUND = 32  # at least this many new goals are drawn per round (see draw_done)
 MAX_AGENTS = 46340  # (N - 1) * N + N < 2**31 for the random order's affine map
 ROOT_LOOKAHEAD = 4  # roots looked at per PIBT call for one that no push has decided yet
-PREDECIDE = True    # decide the moves PIBT makes in any order before its search (same plan,
-                    # fewer sequential calls); False runs plain PIBT (tests compare the two)
-DIST_CHUNK = 64     # goals per block of the distance relaxation on CPU (see distance_table)
-MAX_TABLE = 2**28   # int16 distance-table entries per batch (512 MiB); more -> several batches
-_PAD = 64      # goal-table and class sizes are padded to multiples of this (fewer recompiles)
+PREDECIDE = True  # decide the moves PIBT makes in any order before its search (same plan,
+# fewer sequential calls); False runs plain PIBT (tests compare the two)
+DIST_CHUNK = 64  # goals per block of the distance relaxation on CPU (see distance_table)
+MAX_TABLE = 2**28  # int16 distance-table entries per batch (512 MiB); more -> several batches
+_PAD = 64  # goal-table and class sizes are padded to multiples of this (fewer recompiles)
 
 
 @dataclass
@@ -108,12 +116,12 @@ class ScreenResult(RunResult):
 class LayoutArrays(NamedTuple):
     """One layout (or a batch, with a leading axis) as padded arrays."""
 
-    traversable: np.ndarray   # bool [H, W]
-    goal_cells: np.ndarray    # int32 [G] flat cell of each distinct goal cell, -1 = padding
-    class_goal: np.ndarray    # int32 [C, K] index into goal_cells, 0 = padding
-    class_cum: np.ndarray     # float32 [C, K] cumulative weights, +inf = padding
-    class_count: np.ndarray   # int32 [C]
-    class_dwell: np.ndarray   # int32 [C]
+    traversable: np.ndarray  # bool [H, W]
+    goal_cells: np.ndarray  # int32 [G] flat cell of each distinct goal cell, -1 = padding
+    class_goal: np.ndarray  # int32 [C, K] index into goal_cells, 0 = padding
+    class_cum: np.ndarray  # float32 [C, K] cumulative weights, +inf = padding
+    class_count: np.ndarray  # int32 [C]
+    class_dwell: np.ndarray  # int32 [C]
 
 
 def _round_up(n: int, m: int = _PAD) -> int:
@@ -125,16 +133,18 @@ def _goal_cells(scen: Scenario) -> np.ndarray:
     return np.unique(np.concatenate([c.cells for c in scen.classes]))
 
 
-def prepare(scens: Sequence[Scenario], pad_goals: int | None = None,
-            pad_class: int | None = None) -> LayoutArrays:
+def prepare(
+    scens: Sequence[Scenario], pad_goals: int | None = None, pad_class: int | None = None
+) -> LayoutArrays:
     """Stack validated scenarios of one scenario kind and one shape into padded arrays."""
     if not scens:
         raise NcaQdError("no layouts to simulate")
     names = {s.name for s in scens}
     shapes = {s.shape for s in scens}
     if len(names) != 1 or len(shapes) != 1:
-        raise NcaQdError(f"a batch needs layouts of one scenario and one shape, got "
-                         f"{sorted(names)} and {sorted(shapes)}")
+        raise NcaQdError(
+            f"a batch needs layouts of one scenario and one shape, got {sorted(names)} and {sorted(shapes)}"
+        )
     uniq = [_goal_cells(s) for s in scens]
     G = pad_goals or _round_up(max(u.size for u in uniq))
     K = pad_class or _round_up(max(c.cells.size for s in scens for c in s.classes))
@@ -148,10 +158,16 @@ def prepare(scens: Sequence[Scenario], pad_goals: int | None = None,
         for i, c in enumerate(s.classes):
             cg[i, : c.cells.size] = np.searchsorted(u, c.cells)
             cum[i, : c.cells.size] = np.cumsum(c.weights)
-        out.append(LayoutArrays(
-            s.traversable.astype(bool), gc, cg, cum,
-            np.array([c.cells.size for c in s.classes], np.int32),
-            np.array([c.dwell for c in s.classes], np.int32)))
+        out.append(
+            LayoutArrays(
+                s.traversable.astype(bool),
+                gc,
+                cg,
+                cum,
+                np.array([c.cells.size for c in s.classes], np.int32),
+                np.array([c.dwell for c in s.classes], np.int32),
+            )
+        )
     return LayoutArrays(*(np.stack(x) for x in zip(*out)))
 
 
@@ -159,6 +175,7 @@ def prepare(scens: Sequence[Scenario], pad_goals: int | None = None,
 def _jax():
     import jax
     import jax.numpy as jnp
+
     return jax, jnp
 
 
@@ -200,7 +217,8 @@ def distance_table(traversable, goal_cells, chunk: int | None = None):
     (default :data:`DIST_CHUNK` on CPU, all goals at once elsewhere): on CPU a chunk's block
     stays in cache through its sweeps and stops when its own goals have converged (human
     101x102 warehouse, idle 2-core machine: 13.3 s with whole-table sweeps in ``[G, H, W]``,
-    2.7 s now; on an accelerator one wide block keeps it busy). ``goal_cells`` < 0 (padding) or on a wall: rows of INF16.
+    2.7 s now; on an accelerator one wide block keeps it busy). ``goal_cells`` < 0 (padding) or on a
+    wall: rows of INF16.
     """
     jax, jnp = _jax()
     H, W = traversable.shape
@@ -210,8 +228,7 @@ def distance_table(traversable, goal_cells, chunk: int | None = None):
         chunk = DIST_CHUNK if _on_cpu() else G
     C = max(1, min(int(chunk), G))
     n = -(-G // C)
-    goals = jnp.concatenate([goal_cells.astype(jnp.int32),
-                             jnp.full(n * C - G, -1, jnp.int32)]).reshape(n, C)
+    goals = jnp.concatenate([goal_cells.astype(jnp.int32), jnp.full(n * C - G, -1, jnp.int32)]).reshape(n, C)
     inf = jnp.int16(INF16)
     trav = traversable.reshape(HW, 1)
     col = jnp.arange(HW) % W
@@ -219,22 +236,25 @@ def distance_table(traversable, goal_cells, chunk: int | None = None):
 
     def relax(d):
         p = jnp.pad(d, ((W, W), (0, 0)), constant_values=INF16)
-        up, down = p[:HW], p[2 * W:]
-        left = jnp.where(has_left, p[W - 1:W - 1 + HW], inf)
-        right = jnp.where(has_right, p[W + 1:W + 1 + HW], inf)
+        up, down = p[:HW], p[2 * W :]
+        left = jnp.where(has_left, p[W - 1 : W - 1 + HW], inf)
+        right = jnp.where(has_right, p[W + 1 : W + 1 + HW], inf)
         best = jnp.minimum(jnp.minimum(up, down), jnp.minimum(left, right))
         best = jnp.minimum(best, inf - 1) + 1
         return jnp.where(trav, jnp.minimum(d, best), inf)
 
     def body(c):
         d, _ = c
-        nd = relax(relax(d))   # two sweeps per convergence test
+        nd = relax(relax(d))  # two sweeps per convergence test
         return nd, jnp.any(nd != d)
 
     def one_chunk(g):
         source = (g >= 0) & trav[jnp.clip(g, 0), 0]
-        d = jnp.full((HW, C), inf, jnp.int16).at[jnp.clip(g, 0), jnp.arange(C)].set(
-            jnp.where(source, jnp.int16(0), inf))
+        d = (
+            jnp.full((HW, C), inf, jnp.int16)
+            .at[jnp.clip(g, 0), jnp.arange(C)]
+            .set(jnp.where(source, jnp.int16(0), inf))
+        )
         d, _ = jax.lax.while_loop(lambda c: c[1], body, (d, jnp.bool_(True)))
         return d.T
 
@@ -271,8 +291,20 @@ def _draw_goal(lay: LayoutArrays, cycle, base, agent, k, phase0):
     return idx.astype(jnp.int32), lay.class_dwell[cls]
 
 
-def _run_batch(lay_all: LayoutArrays, dist_all, lidx, seeds, *, n_agents, T, replan, cycle,
-               record_paths, priority, congestion):
+def _run_batch(
+    lay_all: LayoutArrays,
+    dist_all,
+    lidx,
+    seeds,
+    *,
+    n_agents,
+    T,
+    replan,
+    cycle,
+    record_paths,
+    priority,
+    congestion,
+):
     """All runs in lock-step: run ``r`` simulates layout ``lidx[r]`` with ``seeds[r]``.
 
     Written per run and ``jax.vmap``-ed, except that the loops (time, and PIBT's stack inside
@@ -289,8 +321,8 @@ def _run_batch(lay_all: LayoutArrays, dist_all, lidx, seeds, *, n_agents, T, rep
     N = n_agents
     agents = jnp.arange(N, dtype=jnp.int32)
     n_checks = -(-T // replan)
-    nbr_all, ok_all = vmap(_neighbours)(lay_all.traversable)        # [L, HW, 5]
-    n_draw = min(N, max(DRAW_ROUND, N // 16))   # goals drawn per round in draw_done
+    nbr_all, ok_all = vmap(_neighbours)(lay_all.traversable)  # [L, HW, 5]
+    n_draw = min(N, max(DRAW_ROUND, N // 16))  # goals drawn per round in draw_done
     units = jnp.asarray([u for u in range(1, N + 1) if math.gcd(u, N) == 1], jnp.int32)
     dist_flat = dist_all.reshape(-1)
 
@@ -307,15 +339,27 @@ def _run_batch(lay_all: LayoutArrays, dist_all, lidx, seeds, *, n_agents, T, rep
         phase0 = (_hash(base, agents, 3) % jnp.uint32(len(cycle))).astype(jnp.int32)
         goal0, dwell0 = _draw_goal(lay, cycle, base, agents, jnp.zeros(N, jnp.int32), phase0)
         st = dict(
-            t=jnp.int32(0), pos=pos0, goal=goal0, dwell=dwell0, arrived=jnp.zeros(N, bool),
-            stayed=jnp.zeros(N, jnp.int32), k=jnp.zeros(N, jnp.int32),
-            prio=jnp.zeros(N, jnp.int32), active=jnp.zeros(N, bool),
-            congested=jnp.bool_(False), tasks=jnp.zeros(T, jnp.int32),
-            visits=jnp.zeros(HW, jnp.int32), base=base, phase0=phase0,
+            t=jnp.int32(0),
+            pos=pos0,
+            goal=goal0,
+            dwell=dwell0,
+            arrived=jnp.zeros(N, bool),
+            stayed=jnp.zeros(N, jnp.int32),
+            k=jnp.zeros(N, jnp.int32),
+            prio=jnp.zeros(N, jnp.int32),
+            active=jnp.zeros(N, bool),
+            congested=jnp.bool_(False),
+            tasks=jnp.zeros(T, jnp.int32),
+            visits=jnp.zeros(HW, jnp.int32),
+            base=base,
+            phase0=phase0,
             tiebreak=(_hash(base, agents, 4) & 2047).astype(jnp.int32),
             togo=dist_flat[(li * G + goal0) * HW + pos0].astype(jnp.int32),
-            delays=jnp.int32(0), crowd_sum=jnp.int32(0), n_checked=jnp.int32(0),
-            crowd=jnp.zeros(n_checks + 1, jnp.int32))
+            delays=jnp.int32(0),
+            crowd_sum=jnp.int32(0),
+            n_checked=jnp.int32(0),
+            crowd=jnp.zeros(n_checks + 1, jnp.int32),
+        )
         if record_paths:
             st["paths"] = jnp.zeros((T + 1, N), jnp.int32).at[0].set(pos0)
         return st
@@ -325,21 +369,21 @@ def _run_batch(lay_all: LayoutArrays, dist_all, lidx, seeds, *, n_agents, T, rep
         pos, goal = st["pos"], st["goal"]
         running = ~st["congested"] & (st["t"] < T)
         dwelling = st["arrived"] & (st["stayed"] < st["dwell"])
-        cand = nbr_all[li, pos]                                        # [N, 5]
+        cand = nbr_all[li, pos]  # [N, 5]
         ok = ok_all[li, pos] & ~(dwelling[:, None] & (jnp.arange(5) > 0))
         d = dist_flat[((li * G + goal) * HW)[:, None] + jnp.minimum(cand, HW - 1)]
-        rnd = (_hash(st["base"], st["t"], agents[:, None] * 5 + jnp.arange(5), 5) & 7)
+        rnd = _hash(st["base"], st["t"], agents[:, None] * 5 + jnp.arange(5), 5) & 7
         rnd = rnd.astype(jnp.int32).at[:, 0].set(0)
         key = jnp.where(ok, d.astype(jnp.int32) * 8 + rnd, jnp.int32(2**26)) * 8 + jnp.arange(5)
         # Preference order without a sort: each candidate's rank among the five (keys unique).
-        rank = jnp.sum(key[:, None, :] < key[:, :, None], axis=2)         # [N, 5]
-        slot = rank[:, :, None] == jnp.arange(5)                          # [N, cand, slot]
+        rank = jnp.sum(key[:, None, :] < key[:, :, None], axis=2)  # [N, 5]
+        slot = rank[:, :, None] == jnp.arange(5)  # [N, cand, slot]
         pref = jnp.sum(jnp.where(slot, cand[:, :, None], 0), axis=1)
         pref_ok = jnp.any(slot & ok[:, :, None], axis=1)
         occ = jnp.full(HW + 1, -1, jnp.int32).at[pos].set(agents)
         # The priority order: agent ``order0[i]`` is the i-th highest.
         if priority == "age":  # steps since the last finished goal, then a fixed random tie-break
-            okey = ((2**18 - jnp.minimum(st["prio"], 2**18 - 1)) * 2**11 + st["tiebreak"])
+            okey = (2**18 - jnp.minimum(st["prio"], 2**18 - 1)) * 2**11 + st["tiebreak"]
             order0 = jnp.argsort(okey).astype(jnp.int32)
         else:
             # A fresh random order every step without a sort (an argsort of N keys per run
@@ -370,8 +414,7 @@ def _run_batch(lay_all: LayoutArrays, dist_all, lidx, seeds, *, n_agents, T, rep
         stay = dwelling & running
         pre = stay | free
         target = jnp.where(stay, pos, jnp.where(free, best, -1))
-        pre, target, _ = lax.while_loop(lambda c: c[2], follow,
-                                        (pre, target, jnp.bool_(True)))
+        pre, target, _ = lax.while_loop(lambda c: c[2], follow, (pre, target, jnp.bool_(True)))
         resv = jnp.zeros(HW + 1, bool).at[jnp.where(pre, target, HW)].set(True)
         # Roots: the undecided agents in priority order (a stable partition of order0).
         n_undecided = jnp.sum(~pre).astype(jnp.int32)
@@ -383,10 +426,17 @@ def _run_batch(lay_all: LayoutArrays, dist_all, lidx, seeds, *, n_agents, T, rep
         # its candidates in preference order (illegal ones -> the sentinel cell HW, which is
         # always reserved) and who stands on each.
         pref_c = jnp.where(pref_ok, pref, HW)
-        info = jnp.concatenate([pos[:, None], pref_c, occ[pref_c]], axis=1)      # [N, 11]
+        info = jnp.concatenate([pos[:, None], pref_c, occ[pref_c]], axis=1)  # [N, 11]
         aux = dict(info=info, order=order, n_roots=n_roots)
-        carry = (jnp.int32(0), jnp.int32(0), jnp.int32(0), jnp.int32(0),
-                 jnp.zeros((N, 2), jnp.int32), target.astype(jnp.int32), resv.at[HW].set(True))
+        carry = (
+            jnp.int32(0),
+            jnp.int32(0),
+            jnp.int32(0),
+            jnp.int32(0),
+            jnp.zeros((N, 2), jnp.int32),
+            target.astype(jnp.int32),
+            resv.at[HW].set(True),
+        )
         return carry, aux
 
     def pibt_one(c, x):
@@ -425,14 +475,13 @@ def _run_batch(lay_all: LayoutArrays, dist_all, lidx, seeds, *, n_agents, T, rep
         active = sp > 0
         row = x["info"][a]
         pa, vs, os_ = row[0], row[1:6], row[6:11]
-        below = stack[jnp.maximum(sp - 2, 0)]   # the pusher: (agent * 8 + candidate, cell)
+        below = stack[jnp.maximum(sp - 2, 0)]  # the pusher: (agent * 8 + candidate, cell)
         others = (os_ >= 0) & (os_ != a)
-        blocked = (resv[vs] | ((sp > 1) & (vs == below[1]))
-                   | (others & (target[jnp.maximum(os_, 0)] == pa)))
+        blocked = resv[vs] | ((sp > 1) & (vs == below[1])) | (others & (target[jnp.maximum(os_, 0)] == pa))
         avail = (jnp.arange(5) >= k) & ~blocked
         kk = jnp.argmax(avail).astype(jnp.int32)
         exhausted = ~jnp.any(avail)
-        sel = jnp.arange(5) == kk          # (a one-hot pick: elementwise, not a gather)
+        sel = jnp.arange(5) == kk  # (a one-hot pick: elementwise, not a gather)
         v = jnp.sum(jnp.where(sel, vs, 0))
         o = jnp.sum(jnp.where(sel, os_, 0))
         try_ok = active & ~exhausted
@@ -448,8 +497,7 @@ def _run_batch(lay_all: LayoutArrays, dist_all, lidx, seeds, *, n_agents, T, rep
         resv = resv.at[jnp.where(write, cell, HW + 1)].set(True, mode="drop")
         # A push keeps the pusher (and the candidate it took) on the stack and makes the
         # pushed agent the top; a failed top gives way to its pusher's next candidate.
-        stack = stack.at[jnp.where(push, sp - 1, N)].set(jnp.stack([a * 8 + kk, pa]),
-                                                           mode="drop")
+        stack = stack.at[jnp.where(push, sp - 1, N)].set(jnp.stack([a * 8 + kk, pa]), mode="drop")
         pop = fail & (sp > 1)
         a = jnp.where(push, o, jnp.where(pop, below[0] // 8, a))
         k = jnp.where(push, 0, jnp.where(pop, below[0] % 8 + 1, kk))
@@ -462,16 +510,19 @@ def _run_batch(lay_all: LayoutArrays, dist_all, lidx, seeds, *, n_agents, T, rep
         Few agents finish a goal per step, so goals are drawn for up to ``n_draw`` of them
         at a time (their indices compacted), in a loop that runs once on almost every step,
         rather than for all N agents (13 % less screen time in bench_screen's batch)."""
+
         def body(c):
             goal, dwell, rem = c
             idx = jnp.nonzero(rem, size=n_draw, fill_value=N)[0]
             safe = jnp.minimum(idx, N - 1)
             g, d = _draw_goal(lay, cycle, st["base"], safe, k[safe], st["phase0"][safe])
-            return (goal.at[idx].set(g, mode="drop"), dwell.at[idx].set(d, mode="drop"),
-                    rem.at[idx].set(False, mode="drop"))
+            return (
+                goal.at[idx].set(g, mode="drop"),
+                dwell.at[idx].set(d, mode="drop"),
+                rem.at[idx].set(False, mode="drop"),
+            )
 
-        goal, dwell, _ = lax.while_loop(lambda c: jnp.any(c[2]), body,
-                                        (st["goal"], st["dwell"], done))
+        goal, dwell, _ = lax.while_loop(lambda c: jnp.any(c[2]), body, (st["goal"], st["dwell"], done))
         return goal, dwell
 
     def finish_one(st, target, li):
@@ -496,18 +547,25 @@ def _run_batch(lay_all: LayoutArrays, dist_all, lidx, seeds, *, n_agents, T, rep
         check = (t % replan == 0) | (t == T)
         togo = dist_flat[(li * G + goal) * HW + nxt].astype(jnp.int32)
         if congestion == "moved":  # RHCR's rule: moved, or dwelt at a station
-            active = (st["active"] | moved | (done & (st["dwell"] > 0))
-                      | (arrived & (dwell > 0)))
+            active = st["active"] | moved | (done & (st["dwell"] > 0)) | (arrived & (dwell > 0))
         else:  # "progress": finished a goal, dwelt, or ended the window closer to its goal
-            active = (st["active"] | done | (arrived & (dwell > 0))
-                      | (check & (togo < st["togo"])))
+            active = st["active"] | done | (arrived & (dwell > 0)) | (check & (togo < st["togo"]))
         congested = check & (2 * (N - jnp.sum(active)) > N)
-        new = dict(st, t=t, pos=nxt, goal=goal, dwell=dwell, arrived=arrived, stayed=stayed,
-                   k=k, prio=jnp.where(done, 0, st["prio"] + 1),
-                   active=jnp.where(check, False, active), congested=congested,
-                   togo=jnp.where(check, togo, st["togo"]))
-        new = {key: (jnp.where(running, val, st[key]) if key in _SMALL else val)
-               for key, val in new.items()}
+        new = dict(
+            st,
+            t=t,
+            pos=nxt,
+            goal=goal,
+            dwell=dwell,
+            arrived=arrived,
+            stayed=stayed,
+            k=k,
+            prio=jnp.where(done, 0, st["prio"] + 1),
+            active=jnp.where(check, False, active),
+            congested=congested,
+            togo=jnp.where(check, togo, st["togo"]),
+        )
+        new = {key: (jnp.where(running, val, st[key]) if key in _SMALL else val) for key, val in new.items()}
         ti = jnp.where(running, t, st["t"])
         new["tasks"] = st["tasks"].at[ti - 1].add(jnp.where(running, jnp.sum(done), 0))
         new["visits"] = st["visits"].at[nxt].add(running.astype(jnp.int32))
@@ -530,38 +588,66 @@ def _run_batch(lay_all: LayoutArrays, dist_all, lidx, seeds, *, n_agents, T, rep
         n_checked = st["n_checked"] + check.astype(jnp.int32)
         congested = st["congested"]
         if congestion == "crowding":  # RHCR's rule, or crowded on average since the start
-            congested = congested | (check & (n_checked >= CROWD_MIN_CHECKS)
-                                     & (crowd_sum >= CROWD_MEAN * n_checked))
+            congested = congested | (
+                check & (n_checked >= CROWD_MIN_CHECKS) & (crowd_sum >= CROWD_MEAN * n_checked)
+            )
         ci = jnp.where(check, (st["t"] - 1) // replan, n_checks)
-        return dict(st, crowd_sum=crowd_sum, n_checked=n_checked, congested=congested,
-                    crowd=st["crowd"].at[ci].set(crowd))
+        return dict(
+            st,
+            crowd_sum=crowd_sum,
+            n_checked=n_checked,
+            congested=congested,
+            crowd=st["crowd"].at[ci].set(crowd),
+        )
 
     def step(st):
         carry, aux = vmap(prep_one)(st, lidx)
 
-        carry = lax.while_loop(lambda c: jnp.any((c[0] < aux["n_roots"]) | (c[1] > 0)),
-                               lambda c: vmap(pibt_one)(c, aux), carry)
+        carry = lax.while_loop(
+            lambda c: jnp.any((c[0] < aux["n_roots"]) | (c[1] > 0)), lambda c: vmap(pibt_one)(c, aux), carry
+        )
         new = vmap(finish_one)(st, carry[5], lidx)
         # Crowding only at checks (every ``replan`` steps; running runs share their clock):
         # a batch-level cond, not a vmapped select, so the other steps skip it entirely.
         running = ~st["congested"] & (st["t"] < T)
         check = running & ((new["t"] % replan == 0) | (new["t"] == T))
-        crowd = lax.cond(jnp.any(check), vmap(crowding_one),
-                         lambda p: jnp.zeros(p.shape[0], jnp.int32), new["pos"])
+        crowd = lax.cond(
+            jnp.any(check), vmap(crowding_one), lambda p: jnp.zeros(p.shape[0], jnp.int32), new["pos"]
+        )
         return vmap(record_crowding)(new, crowd, check)
 
     st = vmap(init_one)(lidx, seeds)
     st = lax.while_loop(lambda s: jnp.any(~s["congested"] & (s["t"] < T)), step, st)
-    res = dict(stop_time=st["t"], congested=st["congested"], tasks=st["tasks"],
-               visits=st["visits"].reshape(-1, H, W), k=st["k"], base=st["base"],
-               delays=st["delays"], crowd=st["crowd"][:, :n_checks])
+    res = dict(
+        stop_time=st["t"],
+        congested=st["congested"],
+        tasks=st["tasks"],
+        visits=st["visits"].reshape(-1, H, W),
+        k=st["k"],
+        base=st["base"],
+        delays=st["delays"],
+        crowd=st["crowd"][:, :n_checks],
+    )
     if record_paths:
         res["paths"] = st["paths"]
     return res
 
 
-_SMALL = ("t", "pos", "goal", "dwell", "arrived", "stayed", "k", "prio", "active", "congested",
-          "togo", "crowd_sum", "n_checked")
+_SMALL = (
+    "t",
+    "pos",
+    "goal",
+    "dwell",
+    "arrived",
+    "stayed",
+    "k",
+    "prio",
+    "active",
+    "congested",
+    "togo",
+    "crowd_sum",
+    "n_checked",
+)
 _COMPILED: dict = {}
 _EXECUTABLES: dict = {}
 
@@ -572,10 +658,21 @@ def _batched(n_agents, T, replan, cycle, record_paths, priority, congestion):
     jax, _ = _jax()
     key = (n_agents, T, replan, cycle, record_paths, priority, congestion)
     if key not in _COMPILED:
+
         def run(lay, dist, lidx, seeds):
-            return _run_batch(lay, dist, lidx, seeds, n_agents=n_agents, T=T, replan=replan,
-                              cycle=cycle, record_paths=record_paths, priority=priority,
-                              congestion=congestion)
+            return _run_batch(
+                lay,
+                dist,
+                lidx,
+                seeds,
+                n_agents=n_agents,
+                T=T,
+                replan=replan,
+                cycle=cycle,
+                record_paths=record_paths,
+                priority=priority,
+                congestion=congestion,
+            )
 
         _COMPILED[key] = jax.jit(run)
     return _COMPILED[key]
@@ -600,8 +697,7 @@ def _distance_fn():
     jax, _ = _jax()
     if "dist" not in _COMPILED:
         if _on_cpu():
-            _COMPILED["dist"] = jax.jit(lambda t, g: jax.lax.map(
-                lambda x: distance_table(*x), (t, g)))
+            _COMPILED["dist"] = jax.jit(lambda t, g: jax.lax.map(lambda x: distance_table(*x), (t, g)))
         else:
             _COMPILED["dist"] = jax.jit(jax.vmap(distance_table))
     return _COMPILED["dist"]
@@ -622,9 +718,11 @@ def _distance_tables(traversable, goal_cells, threads: int):
 
     def run():
         with ThreadPoolExecutor(max_workers=parts) as pool:
-            outs = list(pool.map(lambda i: exe(traversable, padded[:, i * size:(i + 1) * size]),
-                                 range(parts)))
+            outs = list(
+                pool.map(lambda i: exe(traversable, padded[:, i * size : (i + 1) * size]), range(parts))
+            )
         return jnp.concatenate(outs, axis=1)[:, :G]
+
     return run
 
 
@@ -649,18 +747,22 @@ def goal_log(lay: LayoutArrays, cycle, base, k_done: np.ndarray) -> list[np.ndar
     gi, dw = _draw_goal(lay_j, cycle, base, a, k, phase0[a])
     cells = np.asarray(lay.goal_cells)[np.asarray(gi)].reshape(N, kmax)
     dw = np.asarray(dw).reshape(N, kmax)
-    return [np.stack([cells[i, : k_done[i] + 1] // W, cells[i, : k_done[i] + 1] % W,
-                      dw[i, : k_done[i] + 1]], axis=1).astype(np.int64) for i in range(N)]
+    return [
+        np.stack(
+            [cells[i, : k_done[i] + 1] // W, cells[i, : k_done[i] + 1] % W, dw[i, : k_done[i] + 1]], axis=1
+        ).astype(np.int64)
+        for i in range(N)
+    ]
 
 
 # ----------------------------------------------------------------------------- public API
-def _check(n_agents: int, T: int, replan: int, congestion: str = CONGESTION,
-           priority: str = PRIORITY) -> None:
+def _check(
+    n_agents: int, T: int, replan: int, congestion: str = CONGESTION, priority: str = PRIORITY
+) -> None:
     if priority not in ("random", "age"):
         raise NcaQdError(f"priority must be 'random' or 'age', got {priority!r}")
     if congestion not in ("moved", "progress", "crowding"):
-        raise NcaQdError(f"congestion rule must be 'moved', 'progress' or 'crowding', "
-                         f"got {congestion!r}")
+        raise NcaQdError(f"congestion rule must be 'moved', 'progress' or 'crowding', got {congestion!r}")
     if isinstance(T, bool) or not isinstance(T, (int, np.integer)) or T <= 0:
         raise NcaQdError(f"horizon T must be a positive integer, got {T!r}")
     if isinstance(n_agents, bool) or not isinstance(n_agents, (int, np.integer)) or n_agents <= 0:
@@ -682,8 +784,10 @@ def layout_groups(scens: Sequence[Scenario], max_entries: int | None = None) -> 
         hw = int(np.prod(s.shape))
         g = _round_up(_goal_cells(s).size)
         if g * hw >= 2**31:
-            raise NcaQdError(f"layout {i} ({s.shape[0]}x{s.shape[1]}, {g} goal cells) is too "
-                             f"large for the screen's distance table ({g * hw:,} entries)")
+            raise NcaQdError(
+                f"layout {i} ({s.shape[0]}x{s.shape[1]}, {g} goal cells) is too "
+                f"large for the screen's distance table ({g * hw:,} entries)"
+            )
         if groups and (len(groups[-1]) + 1) * max(g_max, g) * hw <= limit:
             groups[-1].append(i)
             g_max = max(g_max, g)
@@ -693,11 +797,17 @@ def layout_groups(scens: Sequence[Scenario], max_entries: int | None = None) -> 
     return groups
 
 
-def simulate_scenarios(scens: Sequence[Scenario], n_agents: int, T: int, seeds: Sequence[int],
-                       replan: int = 5, record_paths: bool = False,
-                       priority: str = PRIORITY,
-                       congestion: str = CONGESTION,
-                       threads: int | None = None) -> list[list[ScreenResult]]:
+def simulate_scenarios(
+    scens: Sequence[Scenario],
+    n_agents: int,
+    T: int,
+    seeds: Sequence[int],
+    replan: int = 5,
+    record_paths: bool = False,
+    priority: str = PRIORITY,
+    congestion: str = CONGESTION,
+    threads: int | None = None,
+) -> list[list[ScreenResult]]:
     """Simulate every validated scenario (one kind, one shape) with every seed, as vmapped
     batches (split over ``threads`` CPU threads, default: all available CPUs): one batch,
     or consecutive groups of layouts when the distance tables would exceed ``MAX_TABLE``
@@ -714,19 +824,27 @@ def simulate_scenarios(scens: Sequence[Scenario], n_agents: int, T: int, seeds: 
             raise NcaQdError("goal weights must be finite")
     out: list[list[ScreenResult]] = []
     for group in layout_groups(scens):
-        out += _simulate_group([scens[i] for i in group], n_agents, T, seeds, replan,
-                               record_paths, priority, congestion, threads)
+        out += _simulate_group(
+            [scens[i] for i in group], n_agents, T, seeds, replan, record_paths, priority, congestion, threads
+        )
     return out
 
 
-def _simulate_group(scens: Sequence[Scenario], n_agents: int, T: int, seeds: list[int],
-                    replan: int, record_paths: bool, priority: str, congestion: str,
-                    threads: int | None) -> list[list[ScreenResult]]:
+def _simulate_group(
+    scens: Sequence[Scenario],
+    n_agents: int,
+    T: int,
+    seeds: list[int],
+    replan: int,
+    record_paths: bool,
+    priority: str,
+    congestion: str,
+    threads: int | None,
+) -> list[list[ScreenResult]]:
     """One vmapped batch of validated scenarios (see :func:`simulate_scenarios`)."""
     lay = prepare(scens)
     cycle = tuple(int(c) for c in scens[0].cycle)
-    fn = _batched(int(n_agents), int(T), int(replan), cycle, bool(record_paths),
-                  priority, congestion)
+    fn = _batched(int(n_agents), int(T), int(replan), cycle, bool(record_paths), priority, congestion)
     jax, jnp = _jax()
     lay_j = LayoutArrays(*(jnp.asarray(x) for x in lay))
     S = len(seeds)
@@ -742,8 +860,10 @@ def _simulate_group(scens: Sequence[Scenario], n_agents: int, T: int, seeds: lis
     lidx = np.concatenate([lidx, np.repeat(lidx[-1:], pad)])
     seed_r = np.concatenate([seed_r, np.repeat(seed_r[-1:], pad)])
     tables = _distance_tables(lay_j.traversable, lay_j.goal_cells, n_threads)
-    chunks = [(jnp.asarray(lidx[i * size:(i + 1) * size]),
-               jnp.asarray(seed_r[i * size:(i + 1) * size])) for i in range(threads)]
+    chunks = [
+        (jnp.asarray(lidx[i * size : (i + 1) * size]), jnp.asarray(seed_r[i * size : (i + 1) * size]))
+        for i in range(threads)
+    ]
     L, H, W = lay.traversable.shape
     dist_spec = jax.ShapeDtypeStruct((L, lay.goal_cells.shape[1], H * W), jnp.int16)
     exe = _compiled(fn, lay_j, dist_spec, *chunks[0])  # compiled before the clock starts
@@ -772,42 +892,69 @@ def _simulate_group(scens: Sequence[Scenario], n_agents: int, T: int, seeds: lis
                 W = scen.shape[1]
                 flat = np.asarray(out["paths"][li * S + si][: stop + 1])
                 paths = np.stack([flat // W, flat % W], axis=-1).astype(np.int32)
-                goals = goal_log(one_lay, cycle, out["base"][li * S + si],
-                                 np.asarray(out["k"][li * S + si]))
-            row.append(ScreenResult(
-                scenario=scen.name, seed=seed, n_agents=int(n_agents), T=int(T),
-                throughput=finished / T, success=(not congested) and stop == T,
-                congested=congested, stop_time=stop, finished_tasks=finished,
-                tasks_per_step=tasks,
-                tile_visits=np.asarray(out["visits"][li * S + si]).astype(np.int64),
-                cpu_seconds=cpu, wall_seconds=wall, goals=goals, paths=paths,
-                delay_rate=float(out["delays"][li * S + si]) / max(1, stop * n_agents),
-                crowding=np.asarray(out["crowd"][li * S + si])))
+                goals = goal_log(one_lay, cycle, out["base"][li * S + si], np.asarray(out["k"][li * S + si]))
+            row.append(
+                ScreenResult(
+                    scenario=scen.name,
+                    seed=seed,
+                    n_agents=int(n_agents),
+                    T=int(T),
+                    throughput=finished / T,
+                    success=(not congested) and stop == T,
+                    congested=congested,
+                    stop_time=stop,
+                    finished_tasks=finished,
+                    tasks_per_step=tasks,
+                    tile_visits=np.asarray(out["visits"][li * S + si]).astype(np.int64),
+                    cpu_seconds=cpu,
+                    wall_seconds=wall,
+                    goals=goals,
+                    paths=paths,
+                    delay_rate=float(out["delays"][li * S + si]) / max(1, stop * n_agents),
+                    crowding=np.asarray(out["crowd"][li * S + si]),
+                )
+            )
         results.append(row)
     return results
 
 
-def simulate_batch(layouts: Sequence[Sequence[str]], scenario: str, n_agents: int, T: int,
-                   seeds: Sequence[int], replan: int = 5,
-                   record_paths: bool = False,
-                   priority: str = PRIORITY,
-                   congestion: str = CONGESTION,
-                   threads: int | None = None) -> list[list[ScreenResult]]:
+def simulate_batch(
+    layouts: Sequence[Sequence[str]],
+    scenario: str,
+    n_agents: int,
+    T: int,
+    seeds: Sequence[int],
+    replan: int = 5,
+    record_paths: bool = False,
+    priority: str = PRIORITY,
+    congestion: str = CONGESTION,
+    threads: int | None = None,
+) -> list[list[ScreenResult]]:
     """Validate layouts (rows) and simulate all of them with all seeds in one vmapped batch.
 
     All layouts must have one shape. Bad input (unknown scenario or tiles, unreachable goals,
     too many agents, bad T) raises :class:`NcaQdError` before anything is compiled.
     """
     _check(n_agents, T, replan)
-    scens = [build_scenario(list(r), scenario, n_agents=n_agents, source=f"layout {i}")
-             for i, r in enumerate(layouts)]
-    return simulate_scenarios(scens, n_agents, T, seeds, replan, record_paths, priority,
-                              congestion, threads)
+    scens = [
+        build_scenario(list(r), scenario, n_agents=n_agents, source=f"layout {i}")
+        for i, r in enumerate(layouts)
+    ]
+    return simulate_scenarios(scens, n_agents, T, seeds, replan, record_paths, priority, congestion, threads)
 
 
-def simulate(rows: Sequence[str], scenario: str, n_agents: int, T: int, seed: int,
-             replan: int = 5, record_paths: bool = False,
-             priority: str = PRIORITY, congestion: str = CONGESTION) -> ScreenResult:
+def simulate(
+    rows: Sequence[str],
+    scenario: str,
+    n_agents: int,
+    T: int,
+    seed: int,
+    replan: int = 5,
+    record_paths: bool = False,
+    priority: str = PRIORITY,
+    congestion: str = CONGESTION,
+) -> ScreenResult:
     """One screening run (a batch of one)."""
-    return simulate_batch([rows], scenario, n_agents, T, [seed], replan, record_paths,
-                          priority, congestion)[0][0]
+    return simulate_batch([rows], scenario, n_agents, T, [seed], replan, record_paths, priority, congestion)[
+        0
+    ][0]

@@ -6,7 +6,8 @@ space-time A* on a reservation table (heuristic: true distances along each agent
 queue), executes h steps and repeats. The planner follows RHCR's public implementation as the
 paper ran it (PBS with ``prioritize_start``, a per-call time limit, LRA*-style repair of a
 failed call); ``src/pbs.hpp`` lists its decisions. :data:`VERSION` changes whenever a change
-alters simulated outcomes, so cached results of another planner are never reused. The work happens in C++ (``src/``, module ``_core``),
+alters simulated outcomes, so cached results of another planner are never reused. The work happens
+in C++ (``src/``, module ``_core``),
 which releases the GIL, so :func:`simulate_many` runs seeds in parallel threads.
 
 >>> r = simulate(rows, "warehouse_even", n_agents=200, T=1000, seed=0)
@@ -16,9 +17,10 @@ which releases the GIL, so :func:`simulate_many` runs seeds in parallel threads.
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -29,11 +31,20 @@ from nca_qd.sim.scenario import Scenario, build_scenario
 try:
     from nca_qd.sim.rhcr import _core
 except ImportError as exc:  # pragma: no cover - only when the package was not built
-    raise ImportError("nca_qd.sim.rhcr._core is not built; run `make .venv/.installed` "
-                      f"(pip install -e .) to compile it ({exc})") from exc
+    raise ImportError(
+        "nca_qd.sim.rhcr._core is not built; run `make .venv/.installed` "
+        f"(pip install -e .) to compile it ({exc})"
+    ) from exc
 
-__all__ = ["PLANNER_KEYS", "SimResult", "VERSION", "planner_options", "simulate", "simulate_many",
-           "simulate_scenario"]
+__all__ = [
+    "PLANNER_KEYS",
+    "SimResult",
+    "VERSION",
+    "planner_options",
+    "simulate",
+    "simulate_many",
+    "simulate_scenario",
+]
 
 VERSION: int = int(_core.VERSION)
 
@@ -45,9 +56,9 @@ class SimResult(RunResult):
 
     replans: int = 0
     pbs_failures: int = 0
-    call_nodes: np.ndarray | None = None        # per planning call: PBS nodes expanded
+    call_nodes: np.ndarray | None = None  # per planning call: PBS nodes expanded
     call_cpu_seconds: np.ndarray | None = None  # per planning call: CPU seconds
-    call_failed: np.ndarray | None = None       # per planning call: PBS failed (repaired)
+    call_failed: np.ndarray | None = None  # per planning call: PBS failed (repaired)
     pbs_nodes: int = 0
     low_level_expansions: int = 0
 
@@ -55,11 +66,21 @@ class SimResult(RunResult):
         return {**super().summary(), "pbs_failures": self.pbs_failures}
 
 
-def simulate(rows: Sequence[str], scenario: str, n_agents: int, T: int, seed: int,
-             window: int = 10, replan: int = 5, time_limit_s: float | None = None,
-             record_paths: bool = False, pbs_max_nodes: int | str | None = "auto",
-             plan_time_limit_s: float | None = 60.0, prioritize_start: bool = True,
-             reference_starts: bool = False) -> SimResult:
+def simulate(
+    rows: Sequence[str],
+    scenario: str,
+    n_agents: int,
+    T: int,
+    seed: int,
+    window: int = 10,
+    replan: int = 5,
+    time_limit_s: float | None = None,
+    record_paths: bool = False,
+    pbs_max_nodes: int | str | None = "auto",
+    plan_time_limit_s: float | None = 60.0,
+    prioritize_start: bool = True,
+    reference_starts: bool = False,
+) -> SimResult:
     """Simulate ``n_agents`` agents on the layout ``rows`` for ``T`` timesteps.
 
     Raises :class:`NcaQdError` for bad input (unknown scenario or tiles, unreachable goals,
@@ -73,16 +94,36 @@ def simulate(rows: Sequence[str], scenario: str, n_agents: int, T: int, seed: in
     planner could). A call that hits either is repaired and counted in ``pbs_failures``.
     """
     scen = build_scenario(list(rows), scenario, n_agents=n_agents)
-    return simulate_scenario(scen, n_agents, T, seed, window, replan, time_limit_s,
-                             record_paths, pbs_max_nodes, plan_time_limit_s, prioritize_start,
-                             reference_starts)
+    return simulate_scenario(
+        scen,
+        n_agents,
+        T,
+        seed,
+        window,
+        replan,
+        time_limit_s,
+        record_paths,
+        pbs_max_nodes,
+        plan_time_limit_s,
+        prioritize_start,
+        reference_starts,
+    )
 
 
-def simulate_scenario(scen: Scenario, n_agents: int, T: int, seed: int, window: int = 10,
-                      replan: int = 5, time_limit_s: float | None = None,
-                      record_paths: bool = False, pbs_max_nodes: int | str | None = "auto",
-                      plan_time_limit_s: float | None = 60.0,
-                      prioritize_start: bool = True, reference_starts: bool = False) -> SimResult:
+def simulate_scenario(
+    scen: Scenario,
+    n_agents: int,
+    T: int,
+    seed: int,
+    window: int = 10,
+    replan: int = 5,
+    time_limit_s: float | None = None,
+    record_paths: bool = False,
+    pbs_max_nodes: int | str | None = "auto",
+    plan_time_limit_s: float | None = 60.0,
+    prioritize_start: bool = True,
+    reference_starts: bool = False,
+) -> SimResult:
     """:func:`simulate` for an already validated :class:`Scenario`."""
     _check_params(scen, n_agents, T, window, replan, time_limit_s)
     if plan_time_limit_s is not None and not plan_time_limit_s > 0:
@@ -100,33 +141,65 @@ def simulate_scenario(scen: Scenario, n_agents: int, T: int, seed: int, window: 
         [c.cells.tolist() for c in scen.classes],
         [c.weights.tolist() for c in scen.classes],
         [c.dwell for c in scen.classes],
-        list(scen.cycle), n_agents, T, int(seed) % 2**64, window, replan,
-        float(time_limit_s or 0.0), nodes, record_paths,
-        float(plan_time_limit_s or 0.0), bool(prioritize_start), bool(reference_starts))
+        list(scen.cycle),
+        n_agents,
+        T,
+        int(seed) % 2**64,
+        window,
+        replan,
+        float(time_limit_s or 0.0),
+        nodes,
+        record_paths,
+        float(plan_time_limit_s or 0.0),
+        bool(prioritize_start),
+        bool(reference_starts),
+    )
     width = scen.shape[1]
     offsets, cells, dwell = raw["goal_offsets"], raw["goal_cells"], raw["goal_dwell"]
-    goals = [np.stack([cells[a:b] // width, cells[a:b] % width, dwell[a:b]], axis=1)
-             for a, b in zip(offsets[:-1], offsets[1:])]
+    goals = [
+        np.stack([cells[a:b] // width, cells[a:b] % width, dwell[a:b]], axis=1)
+        for a, b in zip(offsets[:-1], offsets[1:])
+    ]
     paths = None
     if record_paths:
         flat = raw["paths"]
         paths = np.stack([flat // width, flat % width], axis=-1).astype(np.int32)
     return SimResult(
-        scenario=scen.name, seed=int(seed), n_agents=n_agents, T=T,
-        throughput=float(raw["throughput"]), success=bool(raw["success"]),
-        congested=bool(raw["congested"]), timed_out=bool(raw["timed_out"]),
-        stop_time=int(raw["stop_time"]), finished_tasks=int(raw["finished_tasks"]),
-        tasks_per_step=raw["tasks_per_step"], tile_visits=raw["tile_visits"],
-        cpu_seconds=float(raw["cpu_seconds"]), wall_seconds=float(raw["wall_seconds"]),
-        replans=int(raw["replans"]), pbs_failures=int(raw["pbs_failures"]),
-        pbs_nodes=int(raw["pbs_nodes"]), low_level_expansions=int(raw["low_level_expansions"]),
-        call_nodes=raw["call_nodes"], call_cpu_seconds=raw["call_cpu_seconds"],
+        scenario=scen.name,
+        seed=int(seed),
+        n_agents=n_agents,
+        T=T,
+        throughput=float(raw["throughput"]),
+        success=bool(raw["success"]),
+        congested=bool(raw["congested"]),
+        timed_out=bool(raw["timed_out"]),
+        stop_time=int(raw["stop_time"]),
+        finished_tasks=int(raw["finished_tasks"]),
+        tasks_per_step=raw["tasks_per_step"],
+        tile_visits=raw["tile_visits"],
+        cpu_seconds=float(raw["cpu_seconds"]),
+        wall_seconds=float(raw["wall_seconds"]),
+        replans=int(raw["replans"]),
+        pbs_failures=int(raw["pbs_failures"]),
+        pbs_nodes=int(raw["pbs_nodes"]),
+        low_level_expansions=int(raw["low_level_expansions"]),
+        call_nodes=raw["call_nodes"],
+        call_cpu_seconds=raw["call_cpu_seconds"],
         call_failed=raw["call_failed"].astype(bool),
-        goals=goals, paths=paths)
+        goals=goals,
+        paths=paths,
+    )
 
 
-def simulate_many(rows: Sequence[str], scenario: str, n_agents: int, T: int,
-                  seeds: Sequence[int], threads: int | None = None, **kwargs) -> list[SimResult]:
+def simulate_many(
+    rows: Sequence[str],
+    scenario: str,
+    n_agents: int,
+    T: int,
+    seeds: Sequence[int],
+    threads: int | None = None,
+    **kwargs,
+) -> list[SimResult]:
     """Run one simulation per seed, in parallel threads (the core releases the GIL).
 
     ``threads`` defaults to the number of CPUs available to this process. Results come back
@@ -157,28 +230,32 @@ def planner_options(cfg: Mapping[str, Any] | None, where: str = "") -> dict[str,
     out: dict[str, Any] = {}
     if "plan_time_limit_s" in cfg:
         limit = cfg["plan_time_limit_s"]
-        if limit is not None and (isinstance(limit, bool) or not isinstance(limit, (int, float))
-                                  or not limit > 0):
-            raise NcaQdError(f"{where}plan_time_limit_s must be a positive number or null, "
-                             f"got {limit!r}")
+        if limit is not None and (
+            isinstance(limit, bool) or not isinstance(limit, (int, float)) or not limit > 0
+        ):
+            raise NcaQdError(f"{where}plan_time_limit_s must be a positive number or null, got {limit!r}")
         out["plan_time_limit_s"] = None if limit is None else float(limit)
     if "pbs_max_nodes" in cfg:
         nodes = cfg["pbs_max_nodes"]
-        if not (nodes is None or nodes == "auto" or (isinstance(nodes, int)
-                                                      and not isinstance(nodes, bool) and nodes > 0)):
-            raise NcaQdError(f"{where}pbs_max_nodes must be a positive integer, auto or null, "
-                             f"got {nodes!r}")
+        if not (
+            nodes is None
+            or nodes == "auto"
+            or (isinstance(nodes, int) and not isinstance(nodes, bool) and nodes > 0)
+        ):
+            raise NcaQdError(f"{where}pbs_max_nodes must be a positive integer, auto or null, got {nodes!r}")
         out["pbs_max_nodes"] = nodes
     if "prioritize_start" in cfg:
         if not isinstance(cfg["prioritize_start"], bool):
-            raise NcaQdError(f"{where}prioritize_start must be true or false, "
-                             f"got {cfg['prioritize_start']!r}")
+            raise NcaQdError(
+                f"{where}prioritize_start must be true or false, got {cfg['prioritize_start']!r}"
+            )
         out["prioritize_start"] = cfg["prioritize_start"]
     return out
 
 
-def _check_params(scen: Scenario, n_agents: int, T: int, window: int, replan: int,
-                  time_limit_s: float | None) -> None:
+def _check_params(
+    scen: Scenario, n_agents: int, T: int, window: int, replan: int, time_limit_s: float | None
+) -> None:
     if not isinstance(T, (int, np.integer)) or T <= 0:
         raise NcaQdError(f"horizon T must be a positive integer, got {T!r}")
     if n_agents <= 0:
