@@ -9,9 +9,10 @@
   warm-started with the greedy layout; exact, but minutes to hours beyond 33x36.
 - ``method="hybrid"``: the neighbourhood repair, then the monolithic MILP warm-started with its
   result for at most ``milp_time_s`` seconds, keeping
-  whichever is nearer. At size S this proves most near-valid layouts optimal in seconds (the
-  paper's unrepaired layout: 147 tiles, where the neighbourhood stops at 175) and costs at most
-  ``milp_time_s`` on the rest; the repair's distance drives alpha * Delta, so it matters there.
+  whichever is nearer. At size S it proves near-valid layouts optimal in about a second (on
+  the paper's unrepaired layout and on perturbations of the paper's layout the neighbourhood's
+  result was already optimal) and costs at most ``milp_time_s`` on the rest; the repair's
+  distance drives alpha * Delta, so it matters there.
   With ``improve_windows`` (work limits instead of time, so that the result does not depend on
   the machine's load) hybrid is the neighbourhood repair alone: the MILP's time is not a work
   limit.
