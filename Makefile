@@ -1,17 +1,25 @@
-# Set-up is part of every target: the virtual environment .venv is (re)built when it is missing
-# or older than pyproject.toml.
+# Set-up is part of every target: the virtual environment .venv is (re)built when it is missing,
+# older than pyproject.toml or the C++ core, or when Python modules were added, moved or removed
+# (the editable install maps each module to its file, so a module turned into a package needs a
+# reinstall; editing a module does not).
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
+MODULES := $(VENV)/.modules-$(shell find nca_qd experiments -name '*.py' | sort | cksum | cut -d' ' -f1)
 
 .PHONY: test lint run bench clean-venv
 
-$(STAMP): pyproject.toml CMakeLists.txt $(wildcard nca_qd/sim/rhcr/src/*)
+$(STAMP): pyproject.toml CMakeLists.txt $(wildcard nca_qd/sim/rhcr/src/*) $(MODULES)
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --upgrade --quiet pip
 	$(PY) -m pip install --quiet -e '.[dev]'
 	touch $(STAMP)
+
+$(MODULES):
+	mkdir -p $(VENV)
+	rm -f $(VENV)/.modules-*
+	touch $@
 
 # Style (ruff: lint + format) and types of the shared API (mypy), configured in pyproject.toml.
 lint: $(STAMP)

@@ -1,0 +1,151 @@
+"""The evaluation's plan: its settings checked (:func:`validated`), then every size, agent
+count and run count of the tables and curves (:class:`Plan`), from which the simulation
+requests of the layouts follow (:meth:`Plan.requests`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+from nca_qd.errors import NcaQdError
+from nca_qd.evaluation.agents import agent_range, positive_ints, scaled_agents
+from nca_qd.evaluation.records import EvalLayout, Request, full_shape, parse_size, size_map, size_str
+from nca_qd.layouts import get_layout
+
+
+def validated(ecfg: Mapping[str, Any]) -> dict[str, Any]:
+    """Plain copy of the config with its numbers checked (one clear error each)."""
+    e = dict(ecfg)
+
+    def pos(path: str, allow_zero: bool = False) -> None:
+        node: Any = e
+        for k in path.split("."):
+            node = node[k]
+        low = 0 if allow_zero else 1
+        if isinstance(node, bool) or not isinstance(node, int) or node < low:
+            raise NcaQdError(f"{path} must be an integer >= {low}, got {node!r}")
+
+    if not e.get("run_dir"):
+        raise NcaQdError("give run_dir=<run directory>")
+    for p in (
+        "T",
+        "runs.train",
+        "runs.eval",
+        "sweep.train.runs",
+        "sweep.eval.runs",
+        "sizes.runs",
+        "sizes.round_to",
+        "exact.window",
+        "exact.replan",
+        "screen.replan",
+    ):
+        pos(p)
+    for p in ("exact.train", "exact.eval", "exact.sweep_train", "exact.sweep_eval", "exact.sizes", "seed"):
+        pos(p, allow_zero=True)
+    tl = e["exact"].get("time_limit_s")
+    if tl is not None and (isinstance(tl, bool) or not isinstance(tl, (int, float)) or tl <= 0):
+        raise NcaQdError(f"exact.time_limit_s must be a positive number or null, got {tl!r}")
+    from nca_qd.sim.rhcr import planner_options
+
+    planner_options(e["exact"], "exact.")
+    sel = e.setdefault("select", {"by": "s", "pool": 10, "runs": 2, "T": 1000})
+    if sel.get("by") not in ("s", "s_eval"):
+        raise NcaQdError(f"select.by must be s or s_eval, got {sel.get('by')!r}")
+    if sel["by"] == "s_eval":
+        for p in ("select.pool", "select.runs", "select.T"):
+            pos(p)
+        if isinstance(e["elites"], bool) or not isinstance(e["elites"], int):
+            raise NcaQdError(
+                f"select.by=s_eval picks a number of elites; elites must be a count, got {e['elites']!r}"
+            )
+        if e["elites"] > sel["pool"]:
+            raise NcaQdError(f"elites ({e['elites']}) exceeds select.pool ({sel['pool']})")
+    if e["screen"]["where"] not in ("all", "rest"):
+        raise NcaQdError(f"screen.where must be all or rest, got {e['screen']['where']!r}")
+    for k in ("train", "eval"):
+        if e["exact"][k] > e["runs"][k]:
+            raise NcaQdError(f"exact.{k} ({e['exact'][k]}) exceeds runs.{k} ({e['runs'][k]})")
+    return e
+
+
+class Plan:
+    """Sizes, agent counts and run counts of every table and curve."""
+
+    def __init__(self, e: Mapping[str, Any], d: Mapping[str, Any], name: str):
+        self.e, self.d, self.name = e, d, name
+        self.s_train = full_shape(name, d["size"]["train"])
+        self.s_eval = full_shape(name, d["size"]["eval"])
+        self.n_train = int(e["agents"]["train"] or d["n_agents"]["train"])
+        self.n_eval = int(e["agents"]["eval"] or d["n_agents"]["eval"])
+        self.sweep_train = agent_range(e["sweep"]["train"], self.n_train, 10, "sweep.train")
+        self.sweep_eval = agent_range(
+            e["sweep"]["eval"], self.n_eval, get_layout(name).eval_agent_step, "sweep.eval"
+        )
+        sz = e["sizes"]
+        extra = [tuple(positive_ints(s, "sizes.shapes")) for s in sz["shapes"]]
+        for s in extra:
+            if len(s) != 2:
+                raise NcaQdError(f"sizes.shapes entries must be [rows, cols], got {list(s)}")
+        curve = list(extra)
+        if sz["include_main"]:
+            curve = [self.s_train, *curve, self.s_eval]
+        self.curve = list(dict.fromkeys(curve))  # map sizes on the "more sizes" curve
+        self.extra = [s for s in dict.fromkeys(extra) if s not in (self.s_train, self.s_eval)]
+        ref_n = int(sz.get("reference_agents") or self.n_eval)
+        fr = sz["fractions"]
+        if not fr or any(isinstance(f, bool) or not isinstance(f, (int, float)) or f <= 0 for f in fr):
+            raise NcaQdError(f"sizes.fractions must be positive numbers, got {fr!r}")
+        explicit = {
+            parse_size(k): positive_ints(v, f"sizes.agents.{k}") for k, v in size_map(sz, "agents").items()
+        }
+        for key in ("agents", "nca_iters", "n_shelves"):
+            stray = [k for k in size_map(sz, key) if parse_size(k) not in self.curve]
+            if stray:
+                raise NcaQdError(
+                    f"sizes.{key} names {', '.join(map(str, stray))}, not a size "
+                    f"of the curve ({', '.join(size_str(s) for s in self.curve)})"
+                )
+        self.curve_agents = {
+            s: explicit.get(s) or scaled_agents(s, ref_n, self.s_eval, sz["fractions"], int(sz["round_to"]))
+            for s in self.curve
+        }
+        self.all_sizes = [size_str(s) for s in dict.fromkeys([self.s_train, self.s_eval, *self.extra])]
+
+    def which(self, shape: tuple[int, int]) -> str:
+        return "train" if shape == self.s_train else "eval" if shape == self.s_eval else "extra"
+
+    def most_agents(self, shape: tuple[int, int]) -> int:
+        """The most agents any table or curve puts on a map of this size."""
+        ns = list(self.curve_agents.get(shape, []))
+        if shape == self.s_train:
+            ns += [self.n_train, *self.sweep_train]
+        if shape == self.s_eval:
+            ns += [self.n_eval, *self.sweep_eval]
+        return max(ns) if ns else 1
+
+    def requests(self, layouts: Mapping[str, EvalLayout]) -> list[Request]:
+        e, ex = self.e, self.e["exact"]
+        out: list[Request] = []
+        for key, lay in layouts.items():
+            if lay.layout is None:
+                continue
+            shape = lay.layout.shape
+            if shape == self.s_train:
+                out.append(Request("main_train", key, self.n_train, e["runs"]["train"], ex["train"], True))
+                out += [
+                    Request("sweep_train", key, n, e["sweep"]["train"]["runs"], ex["sweep_train"])
+                    for n in self.sweep_train
+                ]
+            if shape == self.s_eval:
+                out.append(Request("main_eval", key, self.n_eval, e["runs"]["eval"], ex["eval"], True))
+                out += [
+                    Request("sweep_eval", key, n, e["sweep"]["eval"]["runs"], ex["sweep_eval"])
+                    for n in self.sweep_eval
+                ]
+            if shape in self.curve_agents and lay.kind != "tiling":
+                out += [
+                    Request("sizes", key, n, e["sizes"]["runs"], ex["sizes"])
+                    for n in self.curve_agents[shape]
+                ]
+        return out

@@ -1,0 +1,230 @@
+"""The simulations of an evaluation: exact RHCR runs and screened runs.
+
+The requests are merged into one cell per (layout, agent count) (:func:`merge_requests`);
+:func:`simulate_cells` runs each cell's exact RHCR runs as backend jobs (:func:`exact_run`, in
+a background thread) while it screens the cells in this process, in vmapped batches of one
+shape and agent count (:func:`screen_group`). Every run comes back as a
+:class:`~nca_qd.evaluation.records.SimOutcome`.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+import numpy as np
+
+from nca_qd.errors import NcaQdError
+from nca_qd.evaluation.records import EvalLayout, Request, Results, SimOutcome, format_value, size_str
+from nca_qd.evaluation.stats import run_stats
+
+log = logging.getLogger("nca_qd.evaluate")
+
+
+def exact_run(
+    rows: list[str],
+    scenario: str,
+    n_agents: int,
+    T: int,
+    seed: int,
+    time_limit_s: float | None,
+    window: int,
+    replan: int,
+    detail: bool,
+    planner: Mapping[str, Any] | None = None,
+) -> SimOutcome:
+    """One exact RHCR run as a backend job (errors of the layout come back in ``error``);
+    ``planner``: validated planner knobs (:func:`nca_qd.sim.rhcr.planner_options`)."""
+    from nca_qd.sim.rhcr import simulate
+
+    t0 = time.perf_counter()
+    try:
+        r = simulate(
+            rows,
+            scenario,
+            n_agents,
+            T,
+            seed,
+            window=window,
+            replan=replan,
+            time_limit_s=time_limit_s,
+            **dict(planner or {}),
+        )
+    except NcaQdError as exc:
+        return SimOutcome("rhcr", seed, error=str(exc), seconds=time.perf_counter() - t0)
+    return SimOutcome(
+        "rhcr",
+        seed,
+        float(r.throughput),
+        bool(r.success),
+        int(r.stop_time),
+        bool(r.timed_out),
+        time.perf_counter() - t0,
+        None,
+        np.asarray(r.tasks_per_step) if detail else None,
+        np.asarray(r.tile_visits) if detail else None,
+    )
+
+
+def merge_requests(requests: Iterable[Request]) -> dict[tuple[str, int], Request]:
+    """One simulation cell per (layout, agent count): the most runs any request asks for."""
+    cells: dict[tuple[str, int], Request] = {}
+    for r in requests:
+        c = cells.get((r.layout, r.n_agents))
+        if c is None:
+            cells[(r.layout, r.n_agents)] = Request(
+                "cell", r.layout, r.n_agents, r.screen_runs, r.exact_runs, r.detail
+            )
+        else:
+            c.screen_runs = max(c.screen_runs, r.screen_runs)
+            c.exact_runs = max(c.exact_runs, r.exact_runs)
+            c.detail = c.detail or r.detail
+    return cells
+
+
+def simulate_cells(
+    cells: Mapping[tuple[str, int], Request],
+    layouts: Mapping[str, EvalLayout],
+    scenario: str,
+    tiles: str,
+    T: int,
+    seed0: int,
+    backend,
+    exact_cfg: Mapping[str, Any],
+    screen_cfg: Mapping[str, Any],
+    progress: bool = True,
+) -> Results:
+    """Run every cell: exact runs as backend jobs (in a background thread, so they overlap
+    the screening), screening runs batched by (shape, agent count) in this process.
+    Returns ``results[(layout, n_agents, simulator)]``: outcomes in seed order."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from tqdm import tqdm
+
+    from nca_qd.io import array_to_rows
+    from nca_qd.scoring.backend import JobFailed, map_jobs
+    from nca_qd.sim.rhcr import planner_options
+
+    rows = {k: array_to_rows(v.layout, tiles) for k, v in layouts.items() if v.layout is not None}
+    planner = planner_options(exact_cfg, "exact.")
+    jobs, slots = [], []
+    for (key, n), c in cells.items():
+        for i in range(c.exact_runs):
+            jobs.append(
+                (
+                    rows[key],
+                    scenario,
+                    n,
+                    T,
+                    seed0 + i,
+                    exact_cfg.get("time_limit_s"),
+                    int(exact_cfg.get("window", 10)),
+                    int(exact_cfg.get("replan", 5)),
+                    c.detail,
+                    planner,
+                )
+            )
+            slots.append((key, n))
+    results: Results = {}
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        future = None
+        if jobs:
+            log.info("%d exact RHCR run(s) (T=%d) submitted to %s", len(jobs), T, backend.describe())
+            future = pool.submit(map_jobs, backend, exact_run, jobs)
+        groups: dict[tuple[tuple[int, int], int], list[Request]] = {}
+        for (key, n), c in cells.items():
+            if c.screen_runs > 0:
+                groups.setdefault((layouts[key].layout.shape, n), []).append(c)
+        bar = tqdm(
+            total=sum(len(g) for g in groups.values()),
+            disable=not progress,
+            desc="screen",
+            unit="cell",
+            dynamic_ncols=True,
+        )
+        for (shape, n), group in sorted(groups.items(), key=lambda kv: (kv[0][0], kv[0][1])):
+            bar.set_postfix(size=size_str(shape), agents=n)
+            for c, outs in zip(group, screen_group(group, rows, scenario, n, T, seed0, screen_cfg)):
+                results[(c.layout, n, "screen")] = outs
+            bar.update(len(group))
+        bar.close()
+        if future is not None:
+            if not future.done():
+                log.info("screening done; waiting for the exact runs")
+            for (key, n), job, out in zip(slots, jobs, future.result()):
+                if isinstance(out, JobFailed):
+                    out = SimOutcome("rhcr", job[4], error=out.error)
+                results.setdefault((key, n, "rhcr"), []).append(out)
+    for k in results:
+        results[k].sort(key=lambda o: o.seed)
+        _log_cell(layouts[k[0]], k[1], k[2], results[k])
+    return results
+
+
+def screen_group(
+    group: list[Request],
+    rows: Mapping[str, list[str]],
+    scenario: str,
+    n: int,
+    T: int,
+    seed0: int,
+    screen_cfg: Mapping[str, Any],
+) -> list[list[SimOutcome]]:
+    """Screening runs of layouts of one shape at one agent count, in one vmapped batch."""
+    from nca_qd.sim.screen import simulate_batch
+
+    runs = max(c.screen_runs for c in group)
+    t0 = time.perf_counter()
+    res = simulate_batch(
+        [rows[c.layout] for c in group],
+        scenario,
+        n,
+        T,
+        range(seed0, seed0 + runs),
+        replan=int(screen_cfg.get("replan", 5)),
+        threads=screen_cfg.get("threads"),
+    )
+    per_run = (time.perf_counter() - t0) / max(1, runs * len(group))
+    out = []
+    for c, row in zip(group, res):
+        out.append(
+            [
+                SimOutcome(
+                    "screen",
+                    r.seed,
+                    float(r.throughput),
+                    bool(r.success),
+                    int(r.stop_time),
+                    False,
+                    per_run,
+                    None,
+                    np.asarray(r.tasks_per_step) if c.detail else None,
+                    np.asarray(r.tile_visits) if c.detail else None,
+                )
+                for r in row[: c.screen_runs]
+            ]
+        )
+    return out
+
+
+def _log_cell(lay: EvalLayout, n: int, sim: str, outs: list[SimOutcome]) -> None:
+    s = run_stats(outs)
+    log.info(
+        "%s %s N_a=%d %s: %d run(s), success %s, throughput %s",
+        lay.label,
+        lay.size,
+        n,
+        sim,
+        s["runs"],
+        format_value(s["success_rate"], 2),
+        format_value(s["throughput_mean"], 3),
+    )
+    for o in outs:
+        if o.timed_out:
+            log.warning(
+                "%s %s N_a=%d rhcr seed %d hit the time limit (timed_out)", lay.label, lay.size, n, o.seed
+            )
+        elif o.error:
+            log.warning("%s %s N_a=%d %s seed %d failed: %s", lay.label, lay.size, n, sim, o.seed, o.error)

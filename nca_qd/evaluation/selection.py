@@ -1,0 +1,166 @@
+"""``select.by=s_eval``: the generators to evaluate chosen by a screening run at S_eval.
+
+:func:`select_scalable` generates and repairs the pool's S_eval layouts, screens them and
+ranks the pool; the :class:`Selection` keeps those layouts, which the evaluation reuses, and
+:func:`write_selection` writes selection.csv and the layouts under selection/.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from nca_qd.errors import NcaQdError
+from nca_qd.evaluation.layouts import Repair, generate_timed, repair_all, repair_opts
+from nca_qd.evaluation.plan import Plan
+from nca_qd.evaluation.records import EvalLayout, size_str
+from nca_qd.evaluation.tables import write_csv
+
+log = logging.getLogger("nca_qd.evaluate")
+
+
+@dataclass
+class Selection:
+    """What ``select.by=s_eval`` chose and why: ``cells`` (best first), one ``rows`` entry per
+    candidate (selection.csv), and every candidate's generated and repaired S_eval layout by
+    cell, which the evaluation reuses rather than generating and repairing it again (a
+    time-budgeted repair need not give the same layout twice)."""
+
+    cells: np.ndarray
+    rows: list[dict[str, Any]]
+    layouts: dict[int, EvalLayout]
+
+
+def select_scalable(
+    e, d, domain, archive, pool: np.ndarray, plan: Plan, backend, *, repair: Repair = repair_all
+) -> Selection:
+    """``elites`` cells picked among ``pool`` (the best at S) by a screening run at S_eval.
+
+    Each pool generator generates at S_eval (C_eval iterations) and is repaired; its layout
+    is screened with N_a_eval agents (``select.runs`` seeds, ``select.T`` steps) and the pool
+    is ranked by mean screened throughput (a congested run counts the tasks it finished),
+    then by the S objective. The generators that scale are not always the best at S (the
+    paper's protocol, ``select.by=s``, evaluates those). The pool's layouts are repaired with
+    ``repair`` (:func:`~nca_qd.evaluation.layouts.repair_all` unless given).
+    """
+    from nca_qd.io import array_to_rows
+    from nca_qd.pipeline import make_generator
+    from nca_qd.sim.scenario import build_scenario
+    from nca_qd.sim.screen import simulate_scenarios
+
+    sel, name, tiles = e["select"], domain.name, domain.layout_tiles
+    c_eval, size = int(d["nca_iters"]["eval"]), size_str(plan.s_eval)
+    objective = np.asarray(archive["objective"])
+    lays, secs = generate_timed(
+        domain, make_generator(domain), archive["genotypes"][pool], plan.s_eval, c_eval
+    )
+    items = [
+        EvalLayout(
+            f"nca_c{int(c)}@{size}",
+            f"NCA (cell {int(c)})",
+            "nca",
+            size,
+            "eval",
+            None,
+            lay,
+            int(c),
+            c_eval,
+            sec,
+        )
+        for c, lay, sec in zip(pool, lays, secs)
+    ]
+    log.info(
+        "selecting %d of %d generator(s) by a screening run at %s (%d agents, %d run(s), T=%d)",
+        int(e["elites"]),
+        len(pool),
+        size,
+        plan.n_eval,
+        sel["runs"],
+        sel["T"],
+    )
+    repair(backend, name, [(it, repair_opts(e, d, plan, plan.s_eval)) for it in items])
+    rows, scens, scored = [], [], []
+    for it in items:
+        row = {
+            "cell": it.cell,
+            "objective_s": float(objective[it.cell]),
+            "repair_status": it.repair.status if it.repair else "",
+            "screen_runs": 0,
+            "screen_success_rate": math.nan,
+            "screen_throughput_mean": math.nan,
+            "note": "",
+            "selected": False,
+        }
+        rows.append(row)
+        if it.layout is None:
+            row["note"] = "repair found no layout"
+            continue
+        try:
+            scens.append(
+                build_scenario(array_to_rows(it.layout, tiles), name, n_agents=plan.n_eval, source=it.label)
+            )
+            scored.append(row)
+        except NcaQdError as err:
+            row["note"] = str(err)
+    if scens:
+        seeds = range(int(e["seed"]), int(e["seed"]) + int(sel["runs"]))
+        res = simulate_scenarios(
+            scens,
+            plan.n_eval,
+            int(sel["T"]),
+            seeds,
+            replan=int(e["screen"]["replan"]),
+            threads=e["screen"].get("threads"),
+        )
+        for row, runs in zip(scored, res):
+            row["screen_runs"] = len(runs)
+            row["screen_success_rate"] = float(np.mean([r.success for r in runs]))
+            row["screen_throughput_mean"] = float(np.mean([r.throughput for r in runs]))
+    ranked = sorted(scored, key=lambda r: (-r["screen_throughput_mean"], -r["objective_s"]))
+    if not ranked:
+        raise NcaQdError(
+            f"select.by=s_eval: none of the {len(pool)} generator(s) gave a "
+            f"layout to screen at {size} (see the log)"
+        )
+    for r in ranked[: int(e["elites"])]:
+        r["selected"] = True
+    for r in ranked:
+        log.info(
+            "cell %d: S objective %.3f, screened at %s: throughput %.3f, success %.2f%s",
+            r["cell"],
+            r["objective_s"],
+            size,
+            r["screen_throughput_mean"],
+            r["screen_success_rate"],
+            " (selected)" if r["selected"] else "",
+        )
+    return Selection(
+        np.asarray([r["cell"] for r in ranked[: int(e["elites"])]], dtype=int),
+        rows,
+        {it.cell: it for it in items},
+    )
+
+
+def write_selection(out: Path, selection: Selection, tiles: str) -> None:
+    """selection.csv, and each candidate's repaired S_eval layout under selection/ (so the
+    survivors of the screen can go to exact RHCR without being generated again)."""
+    from nca_qd.io import MapFile, array_to_rows, save_map
+
+    rows = []
+    for r in selection.rows:
+        item = selection.layouts[r["cell"]]
+        r = {**r, "file": ""}
+        if item.layout is not None:
+            stem = f"nca_c{item.cell}_{item.size}"
+            save_map(
+                out / "selection" / f"{stem}.json",
+                MapFile(stem, array_to_rows(item.layout, tiles), {"kind": "nca", "cell": item.cell}),
+            )
+            r["file"] = f"selection/{stem}.json"
+        rows.append(r)
+    write_csv(out / "selection.csv", rows, list(rows[0]))
