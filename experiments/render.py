@@ -2,6 +2,11 @@
 
     python -m experiments.render layout=a.json out=a.png [compare=b.json] [domain=...]
     python -m experiments.render run=<run dir> out=elites.png [elites=4 | elites=[12,340]] [size=eval]
+    python -m experiments.render run=<run dir> pictures=true [out=<dir>]
+
+``pictures=true`` draws every picture a finished run has (archives, curves, best elites at both
+sizes, repaired) from what the run directory holds — also for a run in progress or a committed
+snapshot on a fresh clone — into ``out`` (default: the run directory).
 
 The core call is :func:`render_files` (a list of map files and titles -> one PNG); archive elites
 are generated from the run's archive at the training or evaluation size and drawn the same way.
@@ -55,8 +60,8 @@ def render_elites(out: str | Path, run_dir: str | Path, elites, size: str = "tra
     from omegaconf import OmegaConf
 
     from nca_qd.domains import make_domain
-    from nca_qd.experiment import load_archive, load_run_config, select_elites
     from nca_qd.pipeline import generate, make_generator
+    from nca_qd.run_dir import load_archive, load_run_config, select_elites
     from nca_qd.viz import render_layouts
 
     if size not in ("train", "eval"):
@@ -85,12 +90,24 @@ def render_elites(out: str | Path, run_dir: str | Path, elites, size: str = "tra
 
 def main(argv: list[str]) -> int:
     cfg = compose_config("render", argv)
+    if not isinstance(cfg.pictures, bool):
+        raise NcaQdError(f"pictures must be true or false, got {cfg.pictures!r}")
+    if cfg.get("run") and cfg.pictures:
+        from nca_qd.run_dir import load_run_config
+        from nca_qd.run_pictures import write_run_pictures
+
+        for path in write_run_pictures(cfg.run, load_run_config(cfg.run), out_dir=cfg.out or cfg.run):
+            print(path)
+        return 0
     if cfg.get("run") and cfg.out:
         render_elites(cfg.out, cfg.run, cfg.elites, cfg.size)
         print(cfg.out)
         return 0
     if not cfg.layout or not cfg.out:
-        raise NcaQdError("give layout=<file.json> out=<file.png>, or run=<run dir> out=<file.png>")
+        raise NcaQdError(
+            "give layout=<file.json> out=<file.png>, run=<run dir> out=<file.png>, "
+            "or run=<run dir> pictures=true"
+        )
     paths = [cfg.layout] + ([cfg.compare] if cfg.compare else [])
     domain = cfg.domain.name if cfg.get("domain") is not None else None
     render_files(cfg.out, paths, domain=domain)

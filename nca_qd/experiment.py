@@ -1,4 +1,6 @@
-"""A QD run on disk: configuration, metrics, checkpoints, archives and pictures.
+"""A QD run on disk: the loop that writes configuration, metrics, checkpoints and archives.
+
+Reading a run directory is :mod:`nca_qd.run_dir`; its pictures are :mod:`nca_qd.run_pictures`.
 
 A run directory holds
 
@@ -35,7 +37,6 @@ import logging
 import math
 import time
 from pathlib import Path
-from typing import Any
 
 import jax
 import numpy as np
@@ -44,9 +45,20 @@ from omegaconf import DictConfig, OmegaConf
 from nca_qd.domains import Domain, make_domain
 from nca_qd.errors import NcaQdError
 from nca_qd.io import atomic_write_text, load_pytree
-from nca_qd.pipeline import generate, make_generator, make_objective
+from nca_qd.pipeline import make_generator, make_objective
 from nca_qd.qd import archive_io, checkpoint
-from nca_qd.qd.loop import QDLoop, QDState, archive_fields_to_arrays, archive_spec, make_emitter
+from nca_qd.qd.loop import QDLoop, QDState, archive_spec, make_emitter
+from nca_qd.run_dir import (  # re-exported: readers of a run directory used to find them here
+    CHECKPOINT_FILE,
+    CONFIG_FILE,
+    LEGACY_CHECKPOINT_FILE,
+    METRICS_FILE,
+    SNAPSHOT_FILE,
+    archive_from_checkpoint,
+    load_archive,
+    load_run_config,
+    select_elites,
+)
 
 log = logging.getLogger("nca_qd.run")
 
@@ -65,9 +77,20 @@ METRIC_COLUMNS = [
     "step_seconds",
     "wall_seconds",
 ]
-CONFIG_FILE, METRICS_FILE, CHECKPOINT_FILE = "config.yaml", "metrics.csv", "checkpoint.npz"
-LEGACY_CHECKPOINT_FILE = "checkpoint.msgpack"  # dense msgpack of earlier versions
-SNAPSHOT_FILE = "snapshot.npz"  # portable: the state a fresh clone resumes from
+__all__ = [
+    "METRIC_COLUMNS",
+    "Experiment",
+    "validate_config",
+    "CHECKPOINT_FILE",
+    "CONFIG_FILE",
+    "LEGACY_CHECKPOINT_FILE",
+    "METRICS_FILE",
+    "SNAPSHOT_FILE",
+    "archive_from_checkpoint",
+    "load_archive",
+    "load_run_config",
+    "select_elites",
+]
 
 
 def validate_config(cfg: DictConfig) -> None:
@@ -280,146 +303,16 @@ class Experiment:
         return state
 
     # --- outputs -------------------------------------------------------------------------
-    def best_elites(self, state: QDState, n: int) -> tuple[np.ndarray, np.ndarray]:
-        """Up to ``n`` elites of the result archive (see :func:`select_elites`)."""
-        objective = np.asarray(state.res_archive.fitnesses)[:, 0]
-        pick = select_elites(objective, n)
-        return np.asarray(state.res_archive.genotypes)[pick], pick
-
     def write_outputs(self, state: QDState) -> None:
-        """Archives as ``.npz`` and, unless disabled, every picture."""
+        """Both archives as ``.npz`` and, unless ``output.pictures=false``, every picture
+        (:mod:`nca_qd.run_pictures`)."""
         spec = self.loop.spec
+        views = {}
         for which, archive in (("result", state.res_archive), ("opt", state.opt_archive)):
-            archive_io.save_archive(
-                self.run_dir / f"archive_{which}.npz",
-                checkpoint.archive_elites(archive),
-                spec.cells,
-                spec.ranges,
-            )
+            elites = checkpoint.archive_elites(archive)
+            archive_io.save_archive(self.run_dir / f"archive_{which}.npz", elites, spec.cells, spec.ranges)
+            views[which] = archive_io.archive_view(elites, spec.cells, spec.ranges)
         if self.cfg.output.pictures:
-            self.write_pictures(state)
+            from nca_qd.run_pictures import write_run_pictures
 
-    def write_pictures(self, state: QDState) -> None:
-        from nca_qd import viz
-
-        d = self.domain
-        names = list(self.cfg.domain.measures.names)
-        spec = self.loop.spec
-        for which, archive in (("result", state.res_archive), ("opt", state.opt_archive)):
-            viz.archive_heatmap(
-                self.run_dir / f"archive_{which}.png",
-                np.asarray(archive.fitnesses[:, 0]),
-                spec.cells,
-                spec.ranges,
-                names,
-                title=f"{which} archive ({self.cfg.algo.name}, {d.name})",
-            )
-        viz.metric_curves(self.run_dir / "curves.png", self.run_dir / METRICS_FILE)
-        genotypes, cells = self.best_elites(state, int(self.cfg.output.n_best))
-        if len(genotypes) == 0:
-            return
-        for which in ("train", "eval"):
-            regions = generate(d, self.generator, genotypes, which)
-            layouts = [d.assemble(r) for r in regions]
-            h, w = layouts[0].shape
-            viz.render_layouts(
-                self.run_dir / f"best_{which}.png",
-                layouts,
-                d.layout_tiles,
-                d.palette,
-                [f"cell {c} ({h}x{w})" for c in cells],
-            )
-            if self.cfg.domain.get("repair") is not None and self.cfg.output.get("repaired", True):
-                self._render_repaired(which, layouts, cells)
-
-    def _render_repaired(self, which: str, layouts: list[np.ndarray], cells) -> None:
-        """``best_<which>_repaired.png``: each elite's layout repaired (domains with repair)."""
-        from nca_qd import viz
-        from nca_qd.scoring.backend import make_backend, map_jobs
-        from nca_qd.scoring.tasks import repair_options, repair_task
-
-        d = self.domain
-        opts = repair_options(self.cfg.domain, which)
-        backend = make_backend(self.cfg.get("eval"))
-        try:
-            out = map_jobs(backend, repair_task, [(d.name, lay, opts) for lay in layouts])
-        finally:
-            backend.close()
-        shown, titles = [], []
-        for lay, res, c in zip(layouts, out, cells):
-            ok = getattr(res, "layout", None) is not None
-            shown.append(res.layout if ok else lay)
-            titles.append(f"cell {c} repaired, Hamming {res.hamming}" if ok else f"cell {c}: repair failed")
-        viz.render_layouts(
-            self.run_dir / f"best_{which}_repaired.png", shown, d.layout_tiles, d.palette, titles
-        )
-
-
-def select_elites(objective: np.ndarray, n: int) -> np.ndarray:
-    """Cells of up to ``n`` elites: the best objective first; when more than ``n`` share the
-    best value (the maze's binary objective), ``n`` of them spread evenly over the archive."""
-    occ = np.flatnonzero(np.isfinite(objective))
-    if occ.size == 0:
-        return occ
-    order = occ[np.lexsort((occ, -objective[occ]))]
-    top = order[objective[order] == objective[order[0]]]
-    if top.size >= n:
-        return top[np.linspace(0, top.size - 1, n).round().astype(int)]
-    return order[:n]
-
-
-def load_run_config(run_dir: Path) -> DictConfig:
-    """The saved configuration of a run directory (for ``resume=``)."""
-    path = Path(run_dir) / CONFIG_FILE
-    if not Path(run_dir).is_dir():
-        raise NcaQdError(f"run directory {run_dir} does not exist")
-    if not path.is_file():
-        raise NcaQdError(f"{run_dir} is not a run directory ({CONFIG_FILE} missing)")
-    return OmegaConf.load(path)  # type: ignore[return-value]
-
-
-def load_archive(run_dir: str | Path, which: str = "result") -> dict[str, Any]:
-    """A run's archive as per-cell arrays (:func:`nca_qd.qd.archive_io.archive_view`:
-    ``objective``, ``measures``, ``thresholds``, ``centroids`` and ``genotypes`` indexed by cell).
-
-    A finished run has ``archive_<which>.npz``; a run still in progress (or interrupted) has
-    only its checkpoint, whose archive is read instead — so a long search can be evaluated,
-    rendered or explored while it goes on, without stopping it."""
-    path = Path(run_dir) / f"archive_{which}.npz"
-    if path.is_file():
-        return archive_io.read_archive(path)
-    ckpt = Path(run_dir) / CHECKPOINT_FILE
-    if not ckpt.is_file() and (Path(run_dir) / SNAPSHOT_FILE).is_file():
-        ckpt = Path(run_dir) / SNAPSHOT_FILE
-    legacy = Path(run_dir) / LEGACY_CHECKPOINT_FILE
-    if not ckpt.is_file() and not legacy.is_file():
-        raise NcaQdError(
-            f"{path} not found and no {CHECKPOINT_FILE} beside it (has the run finished an iteration yet?)"
-        )
-    archive, iteration = archive_from_checkpoint(ckpt if ckpt.is_file() else legacy, which)
-    log.info(
-        "%s: no %s yet; using the archive of its checkpoint (iteration %d)", run_dir, path.name, iteration
-    )
-    return archive
-
-
-def archive_from_checkpoint(path: str | Path, which: str = "result") -> tuple[dict[str, Any], int]:
-    """The ``which`` archive of a checkpoint as :func:`load_archive` gives it, and the
-    checkpoint's iteration. Read without a template (no emitter or loop is built)."""
-    path = Path(path)
-    if path.suffix == ".npz":
-        arrays, meta = checkpoint.read_checkpoint(path)
-        grid = arrays["grid_cells"].tolist(), arrays["grid_ranges"].tolist()
-        return (
-            archive_io.archive_view(checkpoint.archive_from_arrays(arrays, which), *grid),
-            int(meta["iteration"]),
-        )
-    from flax import serialization
-
-    try:  # a dense msgpack checkpoint of an earlier version
-        tree = serialization.msgpack_restore(path.read_bytes())
-        state = tree["state"]
-        arch = state[{"result": "res_archive", "opt": "opt_archive"}[which]]
-        return archive_fields_to_arrays(arch), int(np.asarray(state["iteration"]))
-    except (ValueError, KeyError, TypeError, IndexError) as exc:
-        raise NcaQdError(f"{path}: not a readable checkpoint ({exc})") from None
+            write_run_pictures(self.run_dir, self.cfg, views, self.domain, self.generator)

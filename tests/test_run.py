@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from conftest import TINY_MAZE as TINY
 
-from experiments.cli import compose_config
+from experiments.cli import compose_config, main_guard
 from nca_qd.experiment import Experiment
 
 REPO = Path(__file__).resolve().parents[1]
@@ -227,3 +227,30 @@ def test_baselines_run_end_to_end(algo, tmp_path):
         np.asarray(state.opt_archive.thresholds)[occupied],
         np.asarray(state.opt_archive.fitnesses[:, 0])[occupied],
     )
+
+
+def test_render_redraws_a_runs_pictures_from_its_checkpoint_alone(full_run, tmp_path, monkeypatch, capsys):
+    """pictures=true draws what the run drew, from config, metrics and checkpoint only (a run in
+    progress, or a snapshot on a fresh clone): same files, identical archive and layout pictures."""
+    import shutil
+
+    from experiments import render as render_cli
+
+    run_dir, _, _ = full_run
+    partial = tmp_path / "partial"
+    partial.mkdir()
+    for name in ("config.yaml", "metrics.csv", "checkpoint.npz"):
+        shutil.copy(run_dir / name, partial / name)
+    out = tmp_path / "pictures"
+    monkeypatch.setattr(sys, "argv", ["render", f"run={partial}", "pictures=true", f"out={out}"])
+    with pytest.raises(SystemExit) as exc:
+        main_guard(render_cli.main)()
+    assert exc.value.code == 0
+    pictures = sorted(n for n in OUTPUTS if n.endswith(".png"))
+    assert sorted(p.name for p in out.iterdir()) == pictures
+    assert capsys.readouterr().out.split() == [
+        str(out / n)
+        for n in ("archive_result.png", "archive_opt.png", "curves.png", "best_train.png", "best_eval.png")
+    ]
+    for name in ("archive_result.png", "archive_opt.png", "best_train.png", "best_eval.png"):
+        assert (out / name).read_bytes() == (run_dir / name).read_bytes(), name

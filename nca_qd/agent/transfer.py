@@ -330,8 +330,8 @@ def longest_path_elite(domain, gen, archive: Mapping[str, np.ndarray], chunk: in
 def own_nca_layouts(run_dir: str | Path, elite: int | None) -> tuple[dict[str, np.ndarray], int]:
     """The run's chosen generator's bordered mazes at the training and evaluation sizes."""
     from nca_qd.domains import make_domain
-    from nca_qd.experiment import load_archive, load_run_config
     from nca_qd.pipeline import generate, make_generator
+    from nca_qd.run_dir import load_archive, load_run_config
 
     cfg = load_run_config(Path(run_dir))
     if cfg.domain.name not in ("maze",) and not str(cfg.domain.name).startswith("maze"):

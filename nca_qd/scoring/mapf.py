@@ -134,6 +134,33 @@ def screen_bucket(n: int, cap: int | None = None) -> int:
     return max(int(n), min(size, cap)) if cap is not None else size
 
 
+@dataclass
+class _Work:
+    """What the stages of one batch hand on to each other (arrays are per layout)."""
+
+    layouts: np.ndarray  # as generated
+    seeds: list[int]
+    rng: np.random.Generator
+    iteration: int
+    seconds: dict[str, float] = field(default_factory=dict)
+    repaired: list[RepairOutcome] = field(default_factory=list)
+    repair_reused: int = 0
+    ok: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # still valid
+    fixed: np.ndarray = field(default_factory=lambda: np.zeros(0))  # repaired (else generated)
+    similarity: np.ndarray = field(default_factory=lambda: np.zeros(0))  # Delta of the repair
+    rows: list[list[str] | None] = field(default_factory=list)
+    keys: list[bytes] = field(default_factory=list)
+    measures: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    elite: np.ndarray = field(default_factory=lambda: np.zeros(0))  # result cell's objective
+    known: np.ndarray = field(default_factory=lambda: np.zeros(0))  # remembered exact mean
+    fresh: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    screened: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    predicted: np.ndarray = field(default_factory=lambda: np.zeros(0))  # screened x scale
+    run_exact: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    exact: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    n_simulated: int = 0  # distinct layouts given exact runs now
+
+
 class MapfScorer:
     """The evaluator of a multi-agent domain: ``scorer(regions, key, context) -> EvalBatch``."""
 
@@ -300,91 +327,119 @@ class MapfScorer:
 
     # ------------------------------------------------------------------------------ batch
     def __call__(self, regions, key, context: ScoringContext | None = None) -> EvalBatch:
-        regions = np.asarray(regions)
-        b = regions.shape[0]
-        layouts = np.stack([self.domain.assemble(r) for r in regions])
-        tiles = self.domain.layout_tiles
-        seed0 = int(np.asarray(key, dtype=np.uint32).ravel()[-1] % np.uint32(2**31 - 1))
-        seeds = [seed0 + i for i in range(self.n_runs)]
-        rng = np.random.default_rng(seed0)
+        """Score one batch, one stage after the other (see the module docstring)."""
+        layouts = np.stack([self.domain.assemble(r) for r in np.asarray(regions)])
+        seeds, rng = self._seeds(key)
         iteration = context.iteration if context is not None else 0
+        work = _Work(layouts=layouts, seeds=seeds, rng=rng, iteration=iteration)
+        self._stage_repair(work)
+        self._stage_measures(work, context)
+        self._stage_screen(work)
+        self._stage_choose(work)
+        self._stage_exact(work)
+        return self._stage_assemble(work)
 
-        t1 = time.perf_counter()
-        repaired, repair_reused = self._repair_batch(layouts, iteration)
-        t_rep = time.perf_counter() - t1
-        ok = np.array([r.layout is not None for r in repaired])
-        for i, r in enumerate(repaired):
+    def _seeds(self, key) -> tuple[list[int], np.random.Generator]:
+        """The batch's N_e simulation seeds and its random stream (screen and exact choice)."""
+        seed0 = int(np.asarray(key, dtype=np.uint32).ravel()[-1] % np.uint32(2**31 - 1))
+        return [seed0 + i for i in range(self.n_runs)], np.random.default_rng(seed0)
+
+    def _stage_repair(self, w: _Work) -> None:
+        """Repair every layout (memo first); a failed repair leaves the layout invalid."""
+        t = time.perf_counter()
+        w.repaired, w.repair_reused = self._repair_batch(w.layouts, w.iteration)
+        w.seconds["repair_seconds"] = time.perf_counter() - t
+        w.ok = np.array([r.layout is not None for r in w.repaired])
+        for i, r in enumerate(w.repaired):
             if r.layout is None:
                 log.warning("repair of layout %d: %s%s", i, r.status, f" ({r.error})" if r.error else "")
-        fixed = np.stack([r.layout if r.layout is not None else layouts[i] for i, r in enumerate(repaired)])
-        measures = np.asarray(self.domain.measures(fixed), dtype=np.float32)
-        delta = np.array([r.similarity for r in repaired])
-        rows = [array_to_rows(lay, tiles) if good else None for lay, good in zip(fixed, ok)]
-        keys = [layout_key(lay) for lay in fixed]
-        # Layouts already simulated exactly (this search, same settings) need neither.
-        known = np.full(b, np.nan)
-        if self.memo is not None:
-            for i in np.flatnonzero(ok):
-                runs = self.memo.exact(keys[i])
-                known[i] = np.nan if runs is None else runs.mean()
-        fresh = ok & np.isnan(known)
+        w.fixed = np.stack(
+            [r.layout if r.layout is not None else w.layouts[i] for i, r in enumerate(w.repaired)]
+        )
+        w.similarity = np.array([r.similarity for r in w.repaired])
+        tiles = self.domain.layout_tiles
+        w.rows = [array_to_rows(lay, tiles) if good else None for lay, good in zip(w.fixed, w.ok)]
+        w.keys = [layout_key(lay) for lay in w.fixed]
 
-        elite = np.asarray(context.result_elite(measures)) if context is not None else np.full(b, -np.inf)
-        to_screen = self._to_screen(fresh, elite, rng)
-        t2 = time.perf_counter()
-        screened = np.full(b, np.nan)
+    def _stage_measures(self, w: _Work, context: ScoringContext | None) -> None:
+        """The repaired layouts' measures, their result cells' elites, and the exact results
+        the memo already holds (those layouts need neither screen nor exact runs)."""
+        b = len(w.layouts)
+        w.measures = np.asarray(self.domain.measures(w.fixed), dtype=np.float32)
+        w.elite = np.asarray(context.result_elite(w.measures)) if context is not None else np.full(b, -np.inf)
+        w.known = np.full(b, np.nan)
+        if self.memo is not None:
+            for i in np.flatnonzero(w.ok):
+                runs = self.memo.exact(w.keys[i])
+                w.known[i] = np.nan if runs is None else runs.mean()
+        w.fresh = w.ok & np.isnan(w.known)
+
+    def _stage_screen(self, w: _Work) -> None:
+        """Screen the chosen fresh layouts (each distinct one once); a failed screen
+        invalidates its layout."""
+        to_screen = self._to_screen(w.fresh, w.elite, w.rng)
+        t = time.perf_counter()
+        w.screened = np.full(len(w.layouts), np.nan)
         sel = np.flatnonzero(to_screen)
         if sel.size:
-            first, inverse = self._distinct([keys[i] for i in sel])
-            once = self.screen([rows[sel[j]] for j in first], seeds, cap=b)
-            screened[sel] = once[inverse]
-        t_scr = time.perf_counter() - t2
-        ok &= ~(to_screen & np.isnan(screened))
-        predicted = screened * self.cfg.screen_scale
-        run_exact = choose_exact(np.nan_to_num(predicted, nan=-np.inf), elite, ok & fresh, self.cfg, rng)
+            first, inverse = self._distinct([w.keys[i] for i in sel])
+            once = self.screen([w.rows[sel[j]] for j in first], w.seeds, cap=len(w.layouts))
+            w.screened[sel] = once[inverse]
+        w.seconds["screen_seconds"] = time.perf_counter() - t
+        w.ok &= ~(to_screen & np.isnan(w.screened))
+        w.predicted = w.screened * self.cfg.screen_scale
 
-        t3 = time.perf_counter()
-        exact = known.copy()
-        chosen = np.flatnonzero(run_exact)
-        n_simulated = 0  # distinct layouts given exact runs now
+    def _stage_choose(self, w: _Work) -> None:
+        """Which fresh layouts get exact runs (:func:`choose_exact`)."""
+        predicted = np.nan_to_num(w.predicted, nan=-np.inf)
+        w.run_exact = choose_exact(predicted, w.elite, w.ok & w.fresh, self.cfg, w.rng)
+
+    def _stage_exact(self, w: _Work) -> None:
+        """Exact RHCR for the chosen layouts (each distinct one once, remembered)."""
+        t = time.perf_counter()
+        w.exact = w.known.copy()
+        chosen = np.flatnonzero(w.run_exact)
         if chosen.size:
-            exact[chosen], n_simulated = self._exact_batch(
-                [rows[i] for i in chosen], [keys[i] for i in chosen], seeds, iteration
+            w.exact[chosen], w.n_simulated = self._exact_batch(
+                [w.rows[i] for i in chosen], [w.keys[i] for i in chosen], w.seeds, w.iteration
             )
-        t_ex = time.perf_counter() - t3
-        has_exact = ~np.isnan(exact)
-        f = np.where(has_exact, exact, predicted)
-        ok &= ~np.isnan(f)
-        f_opt = np.where(ok, f + self.alpha * delta, self.failed_objective)
-        f_res = np.where(ok & has_exact, exact, self.failed_objective)
-        both = has_exact & ~np.isnan(predicted)
-        err = predicted[both] - exact[both]
+        w.seconds["exact_seconds"] = time.perf_counter() - t
+
+    def _stage_assemble(self, w: _Work) -> EvalBatch:
+        """Objectives (f_opt = f + alpha * Delta; f_res from exact runs only), the
+        iteration's metrics and the per-layout extras."""
+        has_exact = ~np.isnan(w.exact)
+        f = np.where(has_exact, w.exact, w.predicted)
+        ok = w.ok & ~np.isnan(f)
+        f_opt = np.where(ok, f + self.alpha * w.similarity, self.failed_objective)
+        f_res = np.where(ok & has_exact, w.exact, self.failed_objective)
+        both = has_exact & ~np.isnan(w.predicted)
+        err = w.predicted[both] - w.exact[both]
+        n_chosen = int(w.run_exact.sum())
         metrics = {
             "n_valid": int(ok.sum()),
             "n_exact": int(has_exact.sum()),
-            "exact_runs": n_simulated * self.n_runs,
+            "exact_runs": w.n_simulated * self.n_runs,
             "screen_bias": float(err.mean()) if err.size else float("nan"),
             "screen_mae": float(np.abs(err).mean()) if err.size else float("nan"),
-            "repair_reused": int(repair_reused),
-            "exact_reused": int(np.isfinite(known).sum() + chosen.size - n_simulated),
-            "repair_seconds": t_rep,
-            "screen_seconds": t_scr,
-            "exact_seconds": t_ex,
+            "repair_reused": int(w.repair_reused),
+            "exact_reused": int(np.isfinite(w.known).sum() + n_chosen - w.n_simulated),
+            **w.seconds,
         }
         return EvalBatch(
             objective=f_opt.astype(np.float32),
-            measures=measures,
+            measures=w.measures,
             result_objective=f_res.astype(np.float32),
             valid=ok,
             result_valid=ok & has_exact,
             extras={
                 "metrics": metrics,
-                "repaired": fixed,
-                "unrepaired": layouts,
-                "similarity": delta,
-                "screened": screened,
-                "exact": exact,
-                "repair_status": [r.status for r in repaired],
+                "repaired": w.fixed,
+                "unrepaired": w.layouts,
+                "similarity": w.similarity,
+                "screened": w.screened,
+                "exact": w.exact,
+                "repair_status": [r.status for r in w.repaired],
             },
         )
 

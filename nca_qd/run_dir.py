@@ -1,0 +1,97 @@
+"""A run directory as other tools read it: its file names, configuration and archives.
+
+:class:`nca_qd.experiment.Experiment` writes a run directory; the evaluation, the renderer, the
+maze-transfer study and the notebooks only read one. They need no QD loop, no emitter and no
+domain for that: :func:`load_archive` reads a finished run's ``archive_<which>.npz`` or, while
+the run is going on (or on a fresh clone that has only the portable snapshot), the archive
+inside its checkpoint.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from omegaconf import DictConfig, OmegaConf
+
+from nca_qd.errors import NcaQdError
+from nca_qd.qd import archive_io, checkpoint
+from nca_qd.qd.loop import archive_fields_to_arrays
+
+log = logging.getLogger("nca_qd.run")
+
+CONFIG_FILE, METRICS_FILE, CHECKPOINT_FILE = "config.yaml", "metrics.csv", "checkpoint.npz"
+LEGACY_CHECKPOINT_FILE = "checkpoint.msgpack"  # dense msgpack of earlier versions
+SNAPSHOT_FILE = "snapshot.npz"  # portable: the state a fresh clone resumes from
+
+
+def load_run_config(run_dir: str | Path) -> DictConfig:
+    """The saved configuration of a run directory (for ``resume=``)."""
+    path = Path(run_dir) / CONFIG_FILE
+    if not Path(run_dir).is_dir():
+        raise NcaQdError(f"run directory {run_dir} does not exist")
+    if not path.is_file():
+        raise NcaQdError(f"{run_dir} is not a run directory ({CONFIG_FILE} missing)")
+    return OmegaConf.load(path)  # type: ignore[return-value]
+
+
+def select_elites(objective: np.ndarray, n: int) -> np.ndarray:
+    """Cells of up to ``n`` elites: the best objective first; when more than ``n`` share the
+    best value (the maze's binary objective), ``n`` of them spread evenly over the archive."""
+    occ = np.flatnonzero(np.isfinite(objective))
+    if occ.size == 0:
+        return occ
+    order = occ[np.lexsort((occ, -objective[occ]))]
+    top = order[objective[order] == objective[order[0]]]
+    if top.size >= n:
+        return top[np.linspace(0, top.size - 1, n).round().astype(int)]
+    return order[:n]
+
+
+def load_archive(run_dir: str | Path, which: str = "result") -> dict[str, Any]:
+    """A run's archive as per-cell arrays (:func:`nca_qd.qd.archive_io.archive_view`:
+    ``objective``, ``measures``, ``thresholds``, ``centroids`` and ``genotypes`` indexed by cell).
+
+    A finished run has ``archive_<which>.npz``; a run still in progress (or interrupted) has
+    only its checkpoint, whose archive is read instead — so a long search can be evaluated,
+    rendered or explored while it goes on, without stopping it."""
+    path = Path(run_dir) / f"archive_{which}.npz"
+    if path.is_file():
+        return archive_io.read_archive(path)
+    ckpt = Path(run_dir) / CHECKPOINT_FILE
+    if not ckpt.is_file() and (Path(run_dir) / SNAPSHOT_FILE).is_file():
+        ckpt = Path(run_dir) / SNAPSHOT_FILE
+    legacy = Path(run_dir) / LEGACY_CHECKPOINT_FILE
+    if not ckpt.is_file() and not legacy.is_file():
+        raise NcaQdError(
+            f"{path} not found and no {CHECKPOINT_FILE} beside it (has the run finished an iteration yet?)"
+        )
+    archive, iteration = archive_from_checkpoint(ckpt if ckpt.is_file() else legacy, which)
+    log.info(
+        "%s: no %s yet; using the archive of its checkpoint (iteration %d)", run_dir, path.name, iteration
+    )
+    return archive
+
+
+def archive_from_checkpoint(path: str | Path, which: str = "result") -> tuple[dict[str, Any], int]:
+    """The ``which`` archive of a checkpoint as :func:`load_archive` gives it, and the
+    checkpoint's iteration. Read without a template (no emitter or loop is built)."""
+    path = Path(path)
+    if path.suffix == ".npz":
+        arrays, meta = checkpoint.read_checkpoint(path)
+        grid = arrays["grid_cells"].tolist(), arrays["grid_ranges"].tolist()
+        return (
+            archive_io.archive_view(checkpoint.archive_from_arrays(arrays, which), *grid),
+            int(meta["iteration"]),
+        )
+    from flax import serialization
+
+    try:  # a dense msgpack checkpoint of an earlier version
+        tree = serialization.msgpack_restore(path.read_bytes())
+        state = tree["state"]
+        arch = state[{"result": "res_archive", "opt": "opt_archive"}[which]]
+        return archive_fields_to_arrays(arch), int(np.asarray(state["iteration"]))
+    except (ValueError, KeyError, TypeError, IndexError) as exc:
+        raise NcaQdError(f"{path}: not a readable checkpoint ({exc})") from None
