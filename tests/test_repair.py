@@ -178,3 +178,14 @@ def test_the_violation_neighbourhood_skips_windows_too_small_for_the_count_gap(m
 def test_a_timed_out_violation_window_is_not_widened(monkeypatch):
     sizes, _ = _stage_two_windows(monkeypatch, "timeout")
     assert len(sizes) == 1
+
+
+def test_highs_prints_no_banner_into_run_logs():
+    """A process's first HiGHS instance prints a banner on the C-level stdout before options
+    can be set; quiet_highs keeps it out (one per worker used to fill every run log)."""
+    import subprocess
+    import sys
+
+    code = "from nca_qd.repair.milp import quiet_highs; quiet_highs(); quiet_highs(); print('ok')"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout == "ok\n" and "HiGHS" not in out.stderr

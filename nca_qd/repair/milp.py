@@ -19,6 +19,8 @@ source cell (``sum y = 1``, ``y_c <= passable_c``) so no valid layout is exclude
 
 from __future__ import annotations
 
+import os
+import sys
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -28,6 +30,31 @@ import numpy as np
 from scipy import ndimage
 
 from nca_qd.layouts.rules import Rules, neighbours
+
+_BANNER_SILENCED = False
+
+
+def quiet_highs() -> highspy.Highs:
+    """A silent HiGHS instance. HiGHS prints its banner to the C-level stdout when a process
+    constructs its first instance, before any option can be set: that first construction runs
+    with file descriptor 1 on /dev/null, so run logs do not repeat it once per worker."""
+    global _BANNER_SILENCED
+    if _BANNER_SILENCED:
+        hs = highspy.Highs()
+    else:
+        sys.stdout.flush()
+        saved = os.dup(1)
+        try:
+            with open(os.devnull, "w") as null:
+                os.dup2(null.fileno(), 1)
+                hs = highspy.Highs()
+        finally:
+            os.dup2(saved, 1)
+            os.close(saved)
+        _BANNER_SILENCED = True
+    hs.setOptionValue("output_flag", False)
+    return hs
+
 
 _FOUR = ndimage.generate_binary_structure(2, 1)
 
@@ -243,8 +270,7 @@ def solve_window(
         hi = need if rule.op == "==" else inf
         rows.add(cols, [1.0] * len(cols), need, hi)
 
-    hs = highspy.Highs()
-    hs.setOptionValue("output_flag", False)
+    hs = quiet_highs()
     hs.setOptionValue("time_limit", max(0.05, float(time_limit)))
     hs.setOptionValue("threads", int(threads))
     hs.setOptionValue("random_seed", int(seed))
