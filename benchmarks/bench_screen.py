@@ -16,6 +16,12 @@ rule alone). Two bounds are printed beside them: the per-run congestion agreemen
 screen with its own random streams can exceed (RHCR's seed-to-seed spread), and the Spearman
 correlation of RHCR's mean throughput with minus the screen's mean crowding in full-horizon runs.
 
+Planners: ``BENCH_SCREEN_PLANNERS`` (default ``pibt,windowed``) picks the screen's planners that
+fidelity and speed measure: PIBT with both congestion rules, the windowed prioritized planner
+(``nca_qd.sim.screen_windowed``) with RHCR's rule. ``BENCH_SCREEN_CACHED_ONLY=1`` restricts the
+fidelity set to the layouts whose RHCR figures ``BENCH_SCREEN_RHCR_CACHE`` already holds (a
+subset; it says which) and runs no RHCR.
+
 Speed: 50 layouts x 5 seeds x 200 agents x 1,000 steps as one vmapped batch (after
 compilation), and 101x102 with 1,400 agents x 5,000 steps (one run); each the best of
 ``BENCH_SCREEN_REPEATS`` (default 3) timed calls.
@@ -171,12 +177,18 @@ def rhcr_figures(layouts, cache: str | None) -> dict:
     return done
 
 
-def screen_figures(layouts, congestion: str) -> tuple[dict, float]:
+def _planners() -> list[str]:
+    return [p for p in os.environ.get("BENCH_SCREEN_PLANNERS", "pibt,windowed").split(",") if p]
+
+
+def screen_figures(layouts, congestion: str, planner: str = "pibt") -> tuple[dict, float]:
     """name -> list of (throughput, success, mean crowding over the run's checks)."""
     from nca_qd.sim.screen import simulate_batch
 
     t0 = time.perf_counter()
-    res = simulate_batch([rows for _, rows in layouts], SCENARIO, AGENTS, T, SEEDS, congestion=congestion)
+    res = simulate_batch(
+        [rows for _, rows in layouts], SCENARIO, AGENTS, T, SEEDS, congestion=congestion, planner=planner
+    )
     wall = time.perf_counter() - t0
     return {
         name: [[r.throughput, r.success, float(np.mean(r.crowding))] for r in runs]
@@ -192,11 +204,18 @@ def _spearman(x, y) -> float:
 
 def fidelity() -> None:
     layouts = make_layouts()
+    cache = os.environ.get("BENCH_SCREEN_RHCR_CACHE")
+    if os.environ.get("BENCH_SCREEN_CACHED_ONLY") and cache and Path(cache).is_file():
+        held = json.loads(Path(cache).read_text())
+        layouts = [(n, r) for n, r in layouts if n in held]
+        print(
+            f"subset: the {len(layouts)} layouts with cached RHCR figures: {', '.join(n for n, _ in layouts)}"
+        )
     print(
         f"== fidelity: {len(layouts)} layouts 33x36, {SCENARIO}, {AGENTS} agents, T={T}, {len(SEEDS)} seeds"
     )
     t0 = time.perf_counter()
-    exact = rhcr_figures(layouts, os.environ.get("BENCH_SCREEN_RHCR_CACHE"))
+    exact = rhcr_figures(layouts, cache)
     print(f"rhcr: {time.perf_counter() - t0:.0f} s wall")
     names = [n for n, _ in layouts]
     ex_thr = np.array([np.mean([r[0] for r in exact[n]]) for n in names])
@@ -206,18 +225,20 @@ def fidelity() -> None:
     k = ex_ok.sum(1)
     ceiling = 1.0 - float(np.minimum(k, len(SEEDS) - k).sum()) / ex_ok.size
     print(f"per-run congestion agreement ceiling (RHCR's own seed-to-seed spread): {ceiling:.3f}")
-    for congestion in ("crowding", "moved"):
-        screen, wall = screen_figures(layouts, congestion)
+    setups = [("pibt", c) for c in ("crowding", "moved") if "pibt" in _planners()]
+    setups += [("windowed", "moved")] if "windowed" in _planners() else []
+    for planner, congestion in setups:
+        screen, wall = screen_figures(layouts, congestion, planner)
         print(
-            f"screen congestion={congestion}: {wall:.1f} s wall for the batch "
+            f"screen planner={planner} congestion={congestion}: {wall:.1f} s wall for the batch "
             f"({len(layouts) * len(SEEDS)} runs, compilation included)"
         )
         sc_thr = np.array([np.mean([r[0] for r in screen[n]]) for n in names])
         sc_ok = np.array([[r[1] for r in screen[n]] for n in names], bool)
-        if congestion == "crowding":
+        if congestion == "crowding" or planner == "windowed":
             for n, a, b, ea, sb in zip(names, ex_thr, sc_thr, ex_ok, sc_ok):
                 print(f"  {n:22s} rhcr {a:6.3f} ok {ea.sum()}/5   screen {b:6.3f} ok {sb.sum()}/5")
-        if congestion == "moved":  # every run to the horizon: the crowding signal alone
+        if planner == "pibt" and congestion == "moved":  # every run to the horizon: crowding alone
             crowd = np.array([np.mean([r[2] for r in screen[n]]) for n in names])
             print(
                 f"spearman of RHCR mean throughput and minus the screen's mean crowding "
@@ -229,6 +250,7 @@ def fidelity() -> None:
         print(
             json.dumps(
                 {
+                    "planner": planner,
                     "congestion": congestion,
                     "layouts": len(names),
                     "spearman_mean_throughput": round(rho, 3),
@@ -241,57 +263,63 @@ def fidelity() -> None:
         )
 
 
-def _one_big_run(rows: list[str], n: int, steps: int, repeats: int = 1):
+def _one_big_run(rows: list[str], n: int, steps: int, repeats: int = 1, planner: str = "pibt"):
     """One run with RHCR's congestion rule alone: (seconds to compile + 10 steps, seconds for
     ``steps`` steps in each of ``repeats`` calls (the first compiles the ``steps`` horizon),
     its result)."""
     from nca_qd.sim.screen import simulate_batch
 
     t0 = time.perf_counter()
-    simulate_batch([rows], SCENARIO, n, 10, [0], congestion="moved")
+    simulate_batch([rows], SCENARIO, n, 10, [0], congestion="moved", planner=planner)
     comp = time.perf_counter() - t0
     walls = []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        r = simulate_batch([rows], SCENARIO, n, steps, [0], congestion="moved")[0][0]
+        r = simulate_batch([rows], SCENARIO, n, steps, [0], congestion="moved", planner=planner)[0][0]
         walls.append(time.perf_counter() - t0)
     return comp, walls, r
 
 
 def speed() -> None:
+    for planner in _planners():
+        speed_one(planner)
+
+
+def speed_one(planner: str) -> None:
     from nca_qd.sim.screen import simulate_batch
 
     layouts = make_layouts(50)[:50]
     rows = [r for _, r in layouts]
     print(
-        f"== speed (congestion='moved', so runs go the full horizon): {len(rows)} layouts x "
-        f"{len(SEEDS)} seeds x {AGENTS} agents x {T} steps"
+        f"== speed, planner={planner} (congestion='moved', so runs go the full horizon unless "
+        f"congested): {len(rows)} layouts x {len(SEEDS)} seeds x {AGENTS} agents x {T} steps"
     )
     t0 = time.perf_counter()
-    simulate_batch(rows, SCENARIO, AGENTS, T, SEEDS, congestion="moved")
+    simulate_batch(rows, SCENARIO, AGENTS, T, SEEDS, congestion="moved", planner=planner)
     first = time.perf_counter() - t0
     walls, cpus = [], []
     for _ in range(REPEATS):
         t0, c0 = time.perf_counter(), time.process_time()
-        res = simulate_batch(rows, SCENARIO, AGENTS, T, SEEDS, congestion="moved")
+        res = simulate_batch(rows, SCENARIO, AGENTS, T, SEEDS, congestion="moved", planner=planner)
         walls.append(time.perf_counter() - t0)
         cpus.append(time.process_time() - c0)
     print(
         f"first call (with compilation) {first:.1f} s; after compilation, best of {REPEATS}: "
         f"{min(walls):.1f} s wall, {cpus[int(np.argmin(walls))]:.1f} s CPU (all: "
         f"{', '.join(f'{w:.1f}' for w in walls)} s); "
-        f"mean throughput {np.mean([r.throughput for x in res for r in x]):.3f}"
+        f"mean throughput {np.mean([r.throughput for x in res for r in x]):.3f}, "
+        f"success {np.mean([r.success for x in res for r in x]):.2f}"
     )
     big = _load("human_101x102.json")
     if big is None:
         print("human_101x102.json not found, skipped")
         return
     n, steps = 1400, int(os.environ.get("BENCH_SCREEN_BIG_T", 5000))
-    comp, walls, r = _one_big_run(big, n, steps, max(2, REPEATS))
+    comp, walls, r = _one_big_run(big, n, steps, max(2, REPEATS), planner)
     print(
-        f"101x102, {n} agents x {steps} steps: {min(walls[1:]):.1f} s wall after compilation "
-        f"(best of {len(walls) - 1}; distance table included; the first call, which compiles "
-        f"this horizon, {walls[0]:.1f} s; compile+10 steps {comp:.1f} s); "
+        f"101x102, {n} agents x {steps} steps, planner={planner}: {min(walls[1:]):.1f} s wall after "
+        f"compilation (best of {len(walls) - 1}; distance table included; the first call, which "
+        f"compiles this horizon, {walls[0]:.1f} s; compile+10 steps {comp:.1f} s); "
         f"throughput {r.throughput:.3f}, "
         f"success {r.success}, stop_time {r.stop_time}"
     )
