@@ -25,13 +25,11 @@ import os
 import shutil
 from pathlib import Path
 
-import numpy as np
 import pytest
-from omegaconf import OmegaConf
+from test_evaluate import TINY_RUN as TINY_EVALUATE_RUN
+from test_evaluate import HUMAN_9x14, make_run
 
 from experiments import evaluate as evaluate_cli
-from experiments.cli import compose_config
-from nca_qd.io import atomic_write_text, save_npz
 
 GOLDEN = Path(__file__).resolve().parent / "data" / "evaluation_golden"
 REGEN = os.environ.get("NCA_QD_REGEN_GOLDEN") == "1"
@@ -47,30 +45,9 @@ TIMING_COLUMNS = {
     "sim_seconds_mean",  # summary.csv and the curves: mean simulation time of a cell
 }
 
-# Storage 9x10 (9x14 with the workstation columns) at S, 13x14 (13x18) at S_eval; repairs
-# under a budget of improvement windows (work limits, not time: deterministic).
-TINY_RUN = [
-    "domain=warehouse_even",
-    "domain.size.train=[9,10]",
-    "domain.size.eval=[13,14]",
-    "domain.repair.n_shelves.train=12",
-    "domain.repair.n_shelves.eval=24",
-    "domain.repair.improve_windows=4",
-    "domain.n_agents.train=8",
-    "domain.n_agents.eval=12",
-]
-# A valid 9x14 human-designed warehouse (7 shelves), found through $NCA_QD_MAPS.
-HUMAN_9x14 = [
-    "..............",
-    "w...e@@e.....w",
-    "..............",
-    "..e@e..e@e....",
-    "w............w",
-    "....e@@e......",
-    "..............",
-    "w....e@e.....w",
-    "..............",
-]
+# test_evaluate's tiny warehouse run, with repairs under a budget of improvement windows
+# (work limits, not time: deterministic).
+TINY_RUN = [*TINY_EVALUATE_RUN, "domain.repair.improve_windows=4"]
 SETTINGS = [
     "T=40",
     "elites=1",
@@ -97,34 +74,6 @@ SETTINGS = [
 ]
 
 
-def make_run(run_dir: Path, overrides=TINY_RUN, elites=(3, 7)) -> Path:
-    """A run directory with config.yaml and a result archive of random generators."""
-    from nca_qd.domains import make_domain
-    from nca_qd.pipeline import make_generator
-
-    cfg = compose_config("run", list(overrides))
-    n_params = make_generator(make_domain(cfg.domain)).n_params
-    cells = 12
-    rng = np.random.default_rng(0)
-    genotypes = np.zeros((cells, n_params), np.float32)
-    objective = np.full(cells, -np.inf, np.float32)
-    for rank, c in enumerate(elites):
-        genotypes[c] = 0.3 * rng.standard_normal(n_params)
-        objective[c] = 5.0 - rank
-    run_dir.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(run_dir / "config.yaml", OmegaConf.to_yaml(cfg))
-    save_npz(
-        run_dir / "archive_result.npz",
-        {
-            "genotypes": genotypes,
-            "objective": objective,
-            "measures": np.zeros((cells, 2), np.float32),
-            "centroids": np.zeros((cells, 2), np.float32),
-        },
-    )
-    return run_dir
-
-
 def run_evaluation(root: Path) -> Path:
     """The tiny evaluation under ``root``; returns its output directory."""
     maps = root / "maps"
@@ -132,7 +81,7 @@ def run_evaluation(root: Path) -> Path:
     (maps / "warehouse" / "human_9x14.json").write_text(
         json.dumps({"name": "human_9x14", "layout": HUMAN_9x14, "n_row": 9, "n_col": 14})
     )
-    run_dir = make_run(root / "run")
+    run_dir = make_run(root / "run", TINY_RUN)
     out = root / "evaluation"
     with pytest.MonkeyPatch.context() as mp, contextlib.redirect_stdout(io.StringIO()):
         mp.setenv("NCA_QD_MAPS", str(maps))
