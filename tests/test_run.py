@@ -123,6 +123,20 @@ def _cli(*args, timeout=300):
     )
 
 
+def _cli_here(args, capsys, monkeypatch):
+    """experiments.run as its console entry runs it, in this process: (exit status, stderr)."""
+    from experiments.run import main
+
+    monkeypatch.setattr(sys, "argv", ["experiments.run", *args])
+    previous = signal.getsignal(signal.SIGTERM)  # main_guard installs its own
+    try:
+        with pytest.raises(SystemExit) as exc:
+            main_guard(main)()
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    return exc.value.code, capsys.readouterr().err
+
+
 @pytest.mark.parametrize(
     "args,message",
     [
@@ -137,18 +151,26 @@ def _cli(*args, timeout=300):
         (["snapshot.exact_elites=-1"], "checkpoint exact_elites must be a non-negative integer"),
     ],
 )
-def test_bad_input_gets_one_line_and_exit_2(args, message):
-    out = _cli(*args)
+def test_bad_input_gets_one_line_and_exit_2(args, message, capsys, monkeypatch):
+    code, err = _cli_here(args, capsys, monkeypatch)
+    assert code == 2, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and message in lines[0], err
+    assert "Traceback" not in err
+
+
+def test_a_real_process_exits_2_with_one_line():
+    """The same guard as above, seen from outside: exit status and stderr of a real process."""
+    out = _cli("qd.n_evals=abc")
     assert out.returncode == 2, out.stderr
     lines = out.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: ") and message in lines[0], out.stderr
-    assert "Traceback" not in out.stderr
+    assert len(lines) == 1 and lines[0].startswith("error: qd.n_evals must be a positive integer")
 
 
-def test_resume_of_another_domain_is_refused(full_run):
+def test_resume_of_another_domain_is_refused(full_run, capsys, monkeypatch):
     run_dir, _, _ = full_run
-    out = _cli(f"resume={run_dir}", "domain=warehouse_even")
-    assert out.returncode == 2 and "holds a domain 'maze' run" in out.stderr
+    code, err = _cli_here([f"resume={run_dir}", "domain=warehouse_even"], capsys, monkeypatch)
+    assert code == 2 and "holds a domain 'maze' run" in err
 
 
 def test_ctrl_c_leaves_a_resumable_checkpoint(tmp_path):
@@ -172,8 +194,9 @@ def test_ctrl_c_leaves_a_resumable_checkpoint(tmp_path):
     assert proc.returncode == 130, err
     assert "resume with resume=" in err and "Traceback" not in err
     done = len(_metrics(run_dir))
-    out = _cli(f"resume={run_dir}", "qd.n_evals=" + str(8 * (done + 2)), "output.pictures=false")
-    assert out.returncode == 0, out.stderr[-2000:]
+    from experiments.run import main
+
+    assert main([f"resume={run_dir}", "qd.n_evals=" + str(8 * (done + 2)), "output.pictures=false"]) == 0
     rows = _metrics(run_dir)
     assert [int(r["iteration"]) for r in rows] == list(range(1, done + 3))
 

@@ -452,16 +452,40 @@ def _run(args, timeout=600):
     )
 
 
-def test_tiny_warehouse_run_writes_outputs_and_resumes_identically(tmp_path):
-    # checkpoint.exact: the resumed leg replays the uninterrupted run bit for bit (the default
-    # compact checkpoint resumes it statistically: tests/test_checkpoint.py).
+def _run_here(args):
+    """experiments.run's main in this process: the jitted programs compiled by earlier runs
+    are reused (a subprocess per run spent most of its time starting JAX and recompiling)."""
+    from experiments.run import main
+
+    return main(list(args))
+
+
+def test_tiny_warehouse_run_writes_outputs_resumes_identically_and_from_its_snapshot(tmp_path):
+    """checkpoint.exact: the resumed leg replays the uninterrupted run bit for bit (the default
+    compact checkpoint resumes it statistically: tests/test_checkpoint.py). The same leg's
+    portable snapshot, alone with what results/<run>/ commits (config, metrics, memo), carries
+    the run to its end as on a fresh clone."""
+    import shutil
+
+    from nca_qd.qd.checkpoint import read_checkpoint
+
     common = TINY_WAREHOUSE + ["eval.workers=0", "output.n_best=2", "checkpoint.exact=true"]
-    full = _run(common + ["qd.n_evals=18", f"run_dir={tmp_path / 'full'}"])
-    assert full.returncode == 0, full.stderr[-2000:]
-    part = _run(common + ["qd.n_evals=12", "output.pictures=false", f"run_dir={tmp_path / 'part'}"])
-    assert part.returncode == 0, part.stderr[-2000:]
-    more = _run([f"resume={tmp_path / 'part'}", "qd.n_evals=18"])
-    assert more.returncode == 0, more.stderr[-2000:]
+    assert _run_here(common + ["qd.n_evals=18", f"run_dir={tmp_path / 'full'}"]) == 0
+    part = tmp_path / "part"
+    snapshot_args = ["snapshot.enabled=true", "snapshot.exact_elites=1"]
+    leg1 = common + ["qd.n_evals=12", "output.pictures=false", *snapshot_args, f"run_dir={part}"]
+    assert _run_here(leg1) == 0
+    snap, full = part / "snapshot.npz", part / "checkpoint.npz"
+    assert snap.is_file() and snap.stat().st_size < full.stat().st_size
+    arrays, meta = read_checkpoint(snap)
+    assert meta["snapshot"] and arrays["res_exact"].sum() == 1  # the best elite stays float32
+    assert arrays["res_restart_genotypes"].dtype == np.int8
+    clone = tmp_path / "clone"
+    clone.mkdir()
+    for name in ("config.yaml", "metrics.csv", "eval_memo.npz", "snapshot.npz"):
+        shutil.copy(part / name, clone / name)
+
+    assert _run_here([f"resume={part}", "qd.n_evals=18"]) == 0
     for name in ("best_train_repaired.png", "best_eval_repaired.png", "archive_result.png", "curves.png"):
         assert (tmp_path / "full" / name).is_file(), name
     with open(tmp_path / "full" / "metrics.csv") as fh:
@@ -470,43 +494,16 @@ def test_tiny_warehouse_run_writes_outputs_and_resumes_identically(tmp_path):
     assert all(int(r["n_exact"]) <= int(r["n_valid"]) <= 6 for r in rows)
     assert int(rows[0]["n_exact"]) >= 1  # an empty result archive: its first layouts go exact
     a = np.load(tmp_path / "full" / "archive_result.npz")
-    b = np.load(tmp_path / "part" / "archive_result.npz")
+    b = np.load(part / "archive_result.npz")
     np.testing.assert_array_equal(a["objective"], b["objective"])
     np.testing.assert_array_equal(a["genotypes"], b["genotypes"])
-    assert (tmp_path / "part" / "eval_memo.npz").is_file()  # the resumed leg kept its memo
+    assert (part / "eval_memo.npz").is_file()  # the resumed leg kept its memo
 
-
-def test_a_tiny_warehouse_run_resumes_from_its_portable_snapshot_on_a_fresh_clone(tmp_path):
-    """Only what results/<run>/ commits (config, metrics, memo, snapshot) reaches the new
-    machine; the run continues from the snapshot to its end."""
-    import shutil
-
-    common = TINY_WAREHOUSE + [
-        "eval.workers=0",
-        "output.pictures=false",
-        "snapshot.enabled=true",
-        "snapshot.exact_elites=1",
-    ]
-    first = _run(common + ["qd.n_evals=12", f"run_dir={tmp_path / 'leg1'}"])
-    assert first.returncode == 0, first.stderr[-2000:]
-    leg1 = tmp_path / "leg1"
-    snap, full = leg1 / "snapshot.npz", leg1 / "checkpoint.npz"
-    assert snap.is_file() and snap.stat().st_size < full.stat().st_size
-    from nca_qd.qd.checkpoint import read_checkpoint
-
-    arrays, meta = read_checkpoint(snap)
-    assert meta["snapshot"] and arrays["res_exact"].sum() == 1  # the best elite stays float32
-    assert arrays["res_restart_genotypes"].dtype == np.int8
-    clone = tmp_path / "clone"
-    clone.mkdir()
-    for name in ("config.yaml", "metrics.csv", "eval_memo.npz", "snapshot.npz"):
-        shutil.copy(leg1 / name, clone / name)
-    more = _run([f"resume={clone}", "qd.n_evals=18"])
-    assert more.returncode == 0, more.stderr[-2000:]
+    assert _run_here([f"resume={clone}", "qd.n_evals=18"]) == 0
     with open(clone / "metrics.csv") as fh:
         assert [int(r["iteration"]) for r in csv.DictReader(fh)] == [1, 2, 3]
-    a = np.load(clone / "archive_result.npz")
-    assert np.isfinite(a["objective"]).all() and a["genotypes"].shape[0] == a["objective"].size
+    c = np.load(clone / "archive_result.npz")
+    assert np.isfinite(c["objective"]).all() and c["genotypes"].shape[0] == c["objective"].size
 
 
 @pytest.mark.parametrize(

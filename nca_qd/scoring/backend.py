@@ -128,6 +128,10 @@ class LocalBackend:
                 proc.terminate()
         for proc in workers:
             proc.join(timeout=5)
+        for proc in workers:  # one that outlived SIGTERM (seen on a loaded 2-core CI machine)
+            if proc.is_alive():
+                proc.kill()
+                proc.join(timeout=5)
 
     def describe(self) -> str:
         return "inline" if self.workers == 0 else f"local process pool ({self.workers} workers)"
