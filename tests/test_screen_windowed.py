@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
-from sim_layouts import MANUFACTURING, WAREHOUSE
+from sim_layouts import MANUFACTURING, WAREHOUSE, small_warehouses
 
 from nca_qd.errors import NcaQdError
 from nca_qd.sim import screen
@@ -39,19 +39,6 @@ def test_warehouse_and_manufacturing_runs_pass_the_checker():
     assert {int(d) for g in m.goals for d in g[:, 2]} <= {2, 5, 10}
     dense = run_checked(WAREHOUSE, "warehouse_even", n_agents=3 * N, seed=1)  # many stuck plans
     assert dense.finished_tasks > 0
-
-
-@st.composite
-def small_warehouses(draw):
-    """9 x 12 grids: random shelves/endpoints inside, workstations on the left/right border."""
-    rng = np.random.default_rng(draw(st.integers(0, 2**31 - 1)))
-    grid = rng.choice(list("....@e"), size=(9, 12))
-    grid[:, 0] = "."
-    grid[:, -1] = "."
-    grid[rng.integers(0, 9), 0] = "w"
-    grid[rng.integers(0, 9), -1] = "w"
-    grid[rng.integers(0, 9), rng.integers(1, 11)] = "e"
-    return ["".join(r) for r in grid]
 
 
 @settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -305,6 +305,20 @@ def _draw_goal(lay: LayoutArrays, cycle, base, agent, k, phase0):
     return idx.astype(jnp.int32), lay.class_dwell[cls]
 
 
+def _initial_agents(lay: LayoutArrays, cycle, base, n_agents: int):
+    """A run's start: distinct cells drawn uniformly over traversable tiles, each agent's
+    phase in the task cycle and its first goal. Shared by every planner, so that the planners
+    of a seed start from the same state. Returns (cells, phases, goals, dwells)."""
+    _, jnp = _jax()
+    agents = jnp.arange(n_agents, dtype=jnp.int32)
+    trav = lay.traversable.reshape(-1)
+    score = jnp.where(trav, _hash(base, jnp.arange(trav.size), 2), jnp.uint32(0xFFFFFFFF))
+    pos0 = jnp.argsort(score)[:n_agents].astype(jnp.int32)
+    phase0 = (_hash(base, agents, 3) % jnp.uint32(len(cycle))).astype(jnp.int32)
+    goal0, dwell0 = _draw_goal(lay, cycle, base, agents, jnp.zeros(n_agents, jnp.int32), phase0)
+    return pos0, phase0, goal0, dwell0
+
+
 def _run_batch(
     lay_all: LayoutArrays,
     dist_all,
@@ -346,12 +360,7 @@ def _run_batch(
     def init_one(li, seed):
         lay = layout(li)
         base = _hash(seed, 0x51ED)
-        trav = lay.traversable.reshape(-1)
-        # Initial cells: distinct, uniform over traversable tiles.
-        score = jnp.where(trav, _hash(base, jnp.arange(HW), 2), jnp.uint32(0xFFFFFFFF))
-        pos0 = jnp.argsort(score)[:N].astype(jnp.int32)
-        phase0 = (_hash(base, agents, 3) % jnp.uint32(len(cycle))).astype(jnp.int32)
-        goal0, dwell0 = _draw_goal(lay, cycle, base, agents, jnp.zeros(N, jnp.int32), phase0)
+        pos0, phase0, goal0, dwell0 = _initial_agents(lay, cycle, base, N)
         st = dict(
             t=jnp.int32(0),
             pos=pos0,

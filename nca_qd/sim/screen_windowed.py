@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import math
 
-from nca_qd.sim.screen import DENSITY_K, WINDOW, LayoutArrays, _draw_goal, _hash, _jax
+from nca_qd.sim.screen import DENSITY_K, WINDOW, LayoutArrays, _draw_goal, _hash, _initial_agents, _jax
 
 _MOVES = ((-1, 0), (1, 0), (0, -1), (0, 1))  # up, down, left, right
 
@@ -274,11 +274,7 @@ def run_batch(
     def init_one(li, seed):
         lay = layout(li)
         base = _hash(seed, 0x51ED)
-        trav = lay.traversable.reshape(-1)
-        score = jnp.where(trav, _hash(base, jnp.arange(HW), 2), jnp.uint32(0xFFFFFFFF))
-        pos0 = jnp.argsort(score)[:N].astype(jnp.int32)
-        phase0 = (_hash(base, agents, 3) % jnp.uint32(len(cycle))).astype(jnp.int32)
-        goal0, dwell0 = _draw_goal(lay, cycle, base, agents, jnp.zeros(N, jnp.int32), phase0)
+        pos0, phase0, goal0, dwell0 = _initial_agents(lay, cycle, base, N)
         st = dict(
             t=jnp.int32(0),
             pos=pos0,
