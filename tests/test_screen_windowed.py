@@ -109,6 +109,17 @@ def test_goal_beyond_the_window_heads_for_it():
     assert not stuck.any() and tuple(paths[0, -1]) == (1, 10)
 
 
+def test_a_goal_done_inside_the_window_leads_on_to_the_next_one():
+    """As RHCR's goal sequence: an agent does not park on a goal it finishes inside the window
+    (blocking the aisle for the rest of it): it stands its dwell there, then heads on."""
+    grid = np.ones((3, 30), bool)
+    starts, goals, nxt = [(0, 0), (2, 0)], [(0, 2), (2, 2)], [(0, 8), (2, 8)]
+    paths, stuck = plan_window(grid, starts, goals, next_goals=nxt, dwell=[0, 3])
+    assert not stuck.any()
+    assert [tuple(x) for x in paths[0]] == [(0, c) for c in range(9)] + [(0, 8)] * 2
+    assert [tuple(x) for x in paths[1]] == [(2, 0), (2, 1)] + [(2, 2)] * 4 + [(2, c) for c in range(3, 8)]
+
+
 def test_congestion_stops_a_jammed_run_and_not_an_open_one():
     corridor = ["weeeeeeeew"]  # 1-wide, every tile taken: nobody can ever move
     res = simulate(corridor, "warehouse_even", 10, 30, 0, record_paths=True, planner=WIN)

@@ -13,10 +13,15 @@ the agent reserved on y at t is on x at t+1 (a swap). Conflicts forbidden within
 vertex and swap, as in PBS; nothing is reserved after step w. The path minimises the time of
 arrival at the agent's current goal if it can arrive within the window and then stand on the
 goal until step w (the cell free from arrival to w); otherwise w + the true distance to the
-goal (the screen's distance tables) from the cell reached at step w, random ties. A path
-*stops at its goal*: an agent reaching its goal inside the window stands on it to the end of
-the window (it is not routed on to its next goal), and dwelling agents therefore stay. The
-path is recovered by a backtrack through the stored wavefronts (waiting as late as possible).
+goal (the screen's distance tables) from the cell reached at step w, random ties. As in RHCR,
+where an agent plans through its goal sequence, a goal finished inside the window leads on to
+the next one: a second wavefront holds the cells reachable *after* the goal is done (the agent
+arrived, then stood on it for its dwell), and a path that finishes its goal in the window is
+preferred and ends nearest the next goal. (Without it an agent parked on its goal to the end
+of the window, blocking the aisle for the agents planned after it: on 27 held-out layouts the
+screen's throughput where both flow went from 0.76 to 0.89 of RHCR's with the second layer.)
+The path is recovered by a backtrack through the stored wavefronts (waiting as late as
+possible).
 
 An agent that finds no path stays where it is, reserved there for the whole window. Agents
 planned earlier whose paths cross its cell are then replanned (the stuck agents fixed first,
@@ -27,15 +32,17 @@ Execution, goal bookkeeping, congestion and throughput follow ``rhcr.cpp``: goal
 when the agent has stood on the goal cell for the arrival step plus its dwell; after each
 round, more than half of the agents stuck (stood on one cell at the round's times t .. t+h-1
 and were not dwelling there) -> congested, stop; throughput = finished tasks / T. Goals are
-the screen's counter-based streams (one current goal per agent, no look-ahead queue: the
-planner only looks at the current goal).
+the screen's counter-based streams (the planner looks at an agent's current goal and the
+one after it, drawn from the same stream).
 
-Measured (``benchmarks/bench_screen.py``, 2026-11-25, loaded 2-core machine): on the 21 of the 41
-held-out 33x36 layouts with RHCR figures, Spearman 0.83 of mean throughput against RHCR (PIBT
-with the crowding rule 0.61), congestion agreement 65 % per run and 76 % per layout (PIBT 74 % /
-90 %): it congests too early (8 % of runs succeed, RHCR 43 %), notably on random-aisle layouts
-where RHCR flows. About 14x PIBT's time on 50 layouts x 5 seeds x 200 agents; about 1.5x at
-101x102 with 1,400 agents. Not the screen's default.
+Measured against exact RHCR (``benchmarks/bench_screen.py``'s layouts, 200 agents, T=1,000, 5
+seeds; 2026-11-25, 2-core AMD EPYC shared with a search): on the 27 held-out 33x36 layouts with
+cached RHCR figures (the human, paper and paper-mutant layouts and 10 random-aisle ones),
+Spearman 0.85 of mean throughput, congestion agreement 75 % per run and 82 % per layout,
+throughput 0.89 of RHCR's where both flow; it still congests on every random-aisle layout
+(0 of 50 runs succeed, RHCR 27 of 50). PIBT with the crowding rule on the same layouts:
+Spearman 0.88, 79 % per run, 89 % per layout, throughput 0.69 of RHCR's, in 14 s against the
+windowed planner's 530 s (about 1.5x the single-layer version's). Not the screen's default.
 """
 
 from __future__ import annotations
@@ -48,7 +55,8 @@ _MOVES = ((-1, 0), (1, 0), (0, -1), (0, 1))  # up, down, left, right
 
 
 def _planner(lay_all: LayoutArrays, dist_all, n_agents: int, window: int):
-    """``plan_call(pos [N], goal [N], li, order [N], salt) -> (paths [N, w+1], stuck [N])``:
+    """``plan_call(pos [N], goal [N], goal2 [N], drem [N], li, order [N], salt) -> (paths
+    [N, w+1], stuck [N])``:
     one planning call of one run (vmap it over runs), paths as flat cells, free of vertex and
     swap conflicts within the window; ``stuck``: the agents that found no path and stay."""
     jax, jnp = _jax()
@@ -84,7 +92,7 @@ def _planner(lay_all: LayoutArrays, dist_all, n_agents: int, window: int):
     def bit(row, j):
         return ((row >> j.astype(jnp.uint32)) & jnp.uint32(1)) > 0
 
-    def plan_agent(tab, li, a, pos, goal, salt):
+    def plan_agent(tab, li, a, pos, goal, goal2, drem, salt):
         """(path [w+1] flat cells, found) for agent ``a`` at ``pos`` against the table ``tab``.
 
         ``tab`` ``[NP, Hq, NW]`` uint32 holds bit rows of the map (with a margin of w+1): plane
@@ -92,7 +100,13 @@ def _planner(lay_all: LayoutArrays, dist_all, n_agents: int, window: int):
         whose occupant at t moves in direction e at step t -> t+1. The wavefront runs on the
         patch's bit rows (one uint32 per row): ``R[t]`` the cells reachable at t, ``free[t]``
         the cells not reserved at t, ``blk[d][t]`` the cells y that a move in direction d may
-        not enter at step t -> t+1 (y's occupant at t moves the opposite way: a swap)."""
+        not enter at step t -> t+1 (y's occupant at t moves the opposite way: a swap).
+
+        Two layers, as RHCR's goal sequence: ``R`` before the current goal is done, ``R2``
+        after it (the agent stood on ``goal`` for ``drem`` more steps after arriving, then
+        heads for ``goal2``). A path that finishes its goal inside the window is preferred and
+        ends nearest ``goal2``; otherwise one that arrives and stands on the goal to the end of
+        the window; otherwise the cell at step w nearest ``goal``."""
         r, c = pos // W, pos % W
         x0 = c + 1  # the patch's first column in the table
         word = x0 // 32
@@ -104,9 +118,8 @@ def _planner(lay_all: LayoutArrays, dist_all, n_agents: int, window: int):
         moves = win[w + 1 :].reshape(4, w, P)
         blk = [moves[opposite[d]] for d in range(4)]
         zero = jnp.zeros(1, jnp.uint32)
-        R = [jnp.where(jnp.arange(P) == w, jnp.uint32(1 << w), jnp.uint32(0))]
-        for t in range(w):
-            cur = R[-1]
+
+        def expand(cur, t):
             srcs = (
                 jnp.concatenate([cur[1:], zero]),  # up: from the row below
                 jnp.concatenate([zero, cur[:-1]]),  # down: from the row above
@@ -116,32 +129,57 @@ def _planner(lay_all: LayoutArrays, dist_all, n_agents: int, window: int):
             nxt = cur
             for m in range(4):
                 nxt = nxt | (srcs[m] & ~blk[m][t])
-            R.append(nxt & free[t + 1])
+            return nxt
+
+        R = [jnp.where(jnp.arange(P) == w, jnp.uint32(1 << w), jnp.uint32(0))]
+        for t in range(w):
+            R.append(expand(R[-1], t) & free[t + 1])
         Rs = jnp.stack(R)  # [w+1, P]
-        # Arrival at the goal (and standing on it to the window's end).
         gcell = lay_all.goal_cells[li][goal]
         gi, gj = gcell // W - r + w, gcell % W - c + w
         inside = (gi >= 0) & (gi < P) & (gj >= 0) & (gj < P)
         gi, gj = jnp.clip(gi, 0, P - 1), jnp.clip(gj, 0, P - 1)
-        g_free = bit(free[:, gi], gj)
+        g_free = inside & bit(free[:, gi], gj)  # [w+1]
+        at_goal = inside & bit(Rs[:, gi], gj)  # on the goal at t, before it is done
+        # The goal is done at t when the agent arrived at t - drem and stood there since.
+        tau = times - drem
+        tau_c = jnp.clip(tau, 0, w)
+        gcnt = jnp.concatenate([jnp.zeros(1, jnp.int32), jnp.cumsum(g_free.astype(jnp.int32))])
+        stood = gcnt[times + 1] - gcnt[tau_c] == drem + 1
+        inj = (times >= 1) & (tau >= 0) & at_goal[tau_c] & stood
+        gbit = jnp.where(jnp.arange(P) == gi, jnp.uint32(1) << gj.astype(jnp.uint32), jnp.uint32(0))
+        R2 = [jnp.zeros(P, jnp.uint32)]
+        for t in range(w):
+            R2.append((expand(R2[-1], t) | jnp.where(inj[t + 1], gbit, jnp.uint32(0))) & free[t + 1])
+        R2s = jnp.stack(R2)
+        done_in = R2s[w].max() > 0
+        # Else: arrival at the goal and standing on it to the window's end.
         hold = jnp.flip(lax.cummin(jnp.flip(g_free.astype(jnp.int32)))) > 0  # free from t to w
-        arrive = inside & bit(Rs[:, gi], gj) & hold & (times >= 1)
+        arrive = at_goal & hold & (times >= 1)
         has_arr = jnp.any(arrive)
-        tau = jnp.argmax(arrive).astype(jnp.int32)
-        # Otherwise: the reachable cell at step w nearest to the goal (random ties).
-        end = ((Rs[w][:, None] >> bits_idx) & jnp.uint32(1)) > 0  # [P, P]
+        t_arr = jnp.argmax(arrive).astype(jnp.int32)
+        # Else: the reachable cell at step w nearest to the goal. Random ties in both.
         rr = jnp.clip(r - w + pi, 0, H - 1)
         cc = jnp.clip(c - w + pj, 0, W - 1)
-        d = dist_flat[(li * G + goal) * HW + rr * W + cc].astype(jnp.int32)
         hs = _hash(salt, a, 7)
         odd = (hs | jnp.uint32(1)).astype(jnp.int32) & 0xFFFF
         tie = (lin * odd + (hs >> 16).astype(jnp.int32)) & 1023
-        key = jnp.where(end, d * 1024 + tie, jnp.int32(2**30)).reshape(-1)
-        best = jnp.argmin(key).astype(jnp.int32)
-        found = has_arr | (Rs[w].max() > 0)
-        te = jnp.where(has_arr, tau, w)
-        yi = jnp.where(has_arr, gi, best // P)
-        yj = jnp.where(has_arr, gj, best % P)
+
+        def nearest(layer, g):
+            end = ((layer[:, None] >> bits_idx) & jnp.uint32(1)) > 0  # [P, P]
+            d = dist_flat[(li * G + g) * HW + rr * W + cc].astype(jnp.int32)
+            key = jnp.where(end, d * 1024 + tie, jnp.int32(2**30)).reshape(-1)
+            return jnp.argmin(key).astype(jnp.int32)
+
+        best2 = nearest(R2s[w], goal2)
+        best1 = nearest(Rs[w], goal)
+        found = done_in | has_arr | (Rs[w].max() > 0)
+        yi = jnp.where(done_in, best2 // P, jnp.where(has_arr, gi, best1 // P))
+        yj = jnp.where(done_in, best2 % P, jnp.where(has_arr, gj, best1 % P))
+        l2 = done_in
+        # Standing on the goal for s_lo < t <= s_hi (arrived at s_lo).
+        s_lo = jnp.where(has_arr & ~done_in, t_arr, jnp.int32(w + 1))
+        s_hi = jnp.int32(w)
         # Backtrack: stay where possible (so the agent moves as early as it can).
         pis, pjs = [None] * (w + 1), [None] * (w + 1)
         for t in range(w, 0, -1):
@@ -151,11 +189,17 @@ def _planner(lay_all: LayoutArrays, dist_all, n_agents: int, window: int):
             ok_c = (ci >= 0) & (ci < P) & (cj >= 0) & (cj < P)
             ci_c, cj_c = jnp.clip(ci, 0, P - 1), jnp.clip(cj, 0, P - 1)
             swap = jnp.stack([jnp.bool_(False)] + [bit(blk[k][t - 1, yi], yj) for k in range(4)])
-            valid = ok_c & bit(Rs[t - 1, ci_c], cj_c) & ~swap
-            k = jnp.argmax(valid)
-            back = t > te  # standing on the goal after arrival
-            yi = jnp.where(back, yi, ci_c[k])
-            yj = jnp.where(back, yj, cj_c[k])
+            valid1 = ok_c & bit(Rs[t - 1, ci_c], cj_c) & ~swap
+            valid2 = ok_c & bit(R2s[t - 1, ci_c], cj_c) & ~swap
+            # In R2 with no R2 predecessor: here the goal was done; back to R, standing.
+            switch = l2 & ~jnp.any(valid2)
+            l2 = l2 & ~switch
+            s_lo = jnp.where(switch, t - drem, s_lo)
+            s_hi = jnp.where(switch, t, s_hi)
+            standing = ~l2 & (t > s_lo) & (t <= s_hi)
+            k = jnp.argmax(jnp.where(l2, valid2, valid1))
+            yi = jnp.where(standing, yi, ci_c[k])
+            yj = jnp.where(standing, yj, cj_c[k])
         pis[0], pjs[0] = yi, yj
         path = (r - w + jnp.stack(pis)) * W + (c - w + jnp.stack(pjs))
         return jnp.where(found, path, pos).astype(jnp.int32), found
@@ -187,11 +231,11 @@ def _planner(lay_all: LayoutArrays, dist_all, n_agents: int, window: int):
         stay = jnp.zeros(HW + 1, bool).at[jnp.where(fixed, pos, HW)].set(True)
         return ~fixed & jnp.any(stay[paths[:, 1:]], axis=1)
 
-    def plan_call(pos, goal, li, order, salt):
+    def plan_call(pos, goal, goal2, drem, li, order, salt):
         def body(i, c):
             occ, paths, fixed = c
             a = order[i]
-            path, ok = plan_agent(occ, li, a, pos[a], goal[a], salt)
+            path, ok = plan_agent(occ, li, a, pos[a], goal[a], goal2[a], drem[a], salt)
             return reserve(occ, path), paths.at[a].set(path), fixed.at[a].set(~ok)
 
         occ0 = empty_table(li)
@@ -211,7 +255,7 @@ def _planner(lay_all: LayoutArrays, dist_all, n_agents: int, window: int):
             def again(c2):
                 j, occ, paths, fixed = c2
                 a = idx[j]
-                path, ok = plan_agent(occ, li, a, pos[a], goal[a], salt)
+                path, ok = plan_agent(occ, li, a, pos[a], goal[a], goal2[a], drem[a], salt)
                 return j + 1, reserve(occ, path), paths.at[a].set(path), fixed.at[a].set(~ok)
 
             _, occ, paths, fixed = lax.while_loop(lambda c2: c2[0] < n_todo, again, (0, occ, paths, fixed))
@@ -268,7 +312,10 @@ def run_batch(
         n_first = jnp.sum(first)
         slot = jnp.where(first, jnp.cumsum(first) - 1, n_first + jnp.cumsum(~first) - 1)
         order = jnp.zeros(N, jnp.int32).at[slot].set(order0)
-        return plan_call(st["pos"], st["goal"], li, order, _hash(st["base"], st["t"], 8))[0]
+        goal2, _ = _draw_goal(layout(li), cycle, st["base"], agents, st["k"] + 1, st["phase0"])
+        drem = jnp.where(st["arrived"], jnp.maximum(st["dwell"] - st["stayed"], 0), st["dwell"])
+        salt = _hash(st["base"], st["t"], 8)
+        return plan_call(st["pos"], st["goal"], goal2, drem, li, order, salt)[0]
 
     # ------------------------------------------------------------------ state and execution
     def init_one(li, seed):
@@ -378,9 +425,13 @@ def run_batch(
     return res
 
 
-def plan_window(traversable, starts, goals, order=None, window: int = WINDOW, seed: int = 0):
+def plan_window(
+    traversable, starts, goals, order=None, window: int = WINDOW, seed: int = 0, next_goals=None, dwell=None
+):
     """One planning call on its own, for tests and inspection: agents at ``starts`` (row, col)
-    with goals ``goals`` (row, col), planned in ``order`` (default: index order). Returns
+    with goals ``goals`` (row, col), planned in ``order`` (default: index order); after its goal
+    (and ``dwell`` steps standing on it, default 0) each heads for ``next_goals`` (default: the
+    same goal). Returns
     (paths ``[N, w+1, 2]`` as (row, col), stuck ``[N]``: the agents that found no path)."""
     import numpy as np
 
@@ -392,7 +443,9 @@ def plan_window(traversable, starts, goals, order=None, window: int = WINDOW, se
     N = len(starts)
     pos = np.array([r * W + c for r, c in starts], np.int32)
     cells = np.array([r * W + c for r, c in goals], np.int32)
-    uniq, goal = np.unique(cells, return_inverse=True)
+    nxt = np.array([r * W + c for r, c in (goals if next_goals is None else next_goals)], np.int32)
+    uniq, inv = np.unique(np.concatenate([cells, nxt]), return_inverse=True)
+    goal, goal2 = inv[:N], inv[N:]
     lay = LayoutArrays(
         trav[None],
         uniq[None].astype(np.int32),
@@ -405,9 +458,9 @@ def plan_window(traversable, starts, goals, order=None, window: int = WINDOW, se
     dist = distance_table(lay_j.traversable[0], lay_j.goal_cells[0])[None]
     plan_call = _planner(lay_j, dist, N, window)
     order = np.arange(N, dtype=np.int32) if order is None else np.asarray(order, np.int32)
-    paths, stuck = jax.jit(plan_call, static_argnums=())(
-        jnp.asarray(pos), jnp.asarray(goal.astype(np.int32)), 0, jnp.asarray(order), _hash(seed, 9)
-    )
+    drem = jnp.asarray(np.zeros(N) if dwell is None else np.asarray(dwell), jnp.int32)
+    g, g2 = jnp.asarray(goal.astype(np.int32)), jnp.asarray(goal2.astype(np.int32))
+    paths, stuck = jax.jit(plan_call)(jnp.asarray(pos), g, g2, drem, 0, jnp.asarray(order), _hash(seed, 9))
     paths = np.asarray(paths)
     return np.stack([paths // W, paths % W], axis=-1), np.asarray(stuck)
 
