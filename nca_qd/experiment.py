@@ -161,8 +161,14 @@ class Experiment:
             exact_elites=snap.get("exact_elites", 64),
         )
         self.snapshot_policy = snapshot_policy if snap.get("enabled", False) else None
-        # What the checkpoint's results depend on beyond the config (the exact simulator).
+        # What the checkpoint's results depend on beyond the config (the exact simulator), and
+        # the simulators that scored earlier iterations of a run resumed across a change.
         self.simulator = getattr(self.objective.evaluator, "simulator_version", None)
+        self.simulator_history: list[dict] = []
+        allow = cfg.get("allow_simulator_change", False)
+        if not isinstance(allow, bool):
+            raise NcaQdError(f"allow_simulator_change must be true or false, got {allow!r}")
+        self.allow_simulator_change = allow
 
     # --- state on disk -------------------------------------------------------------------
     def initial_state(self) -> QDState:
@@ -179,6 +185,7 @@ class Experiment:
             "domain": str(self.cfg.domain.name),
             "dim": int(self.loop.dim),
             "simulator": self.simulator,
+            "simulator_history": self.simulator_history,
         }
         checkpoint.save_checkpoint(
             self.run_dir / CHECKPOINT_FILE, state, self.loop.emitter, self.checkpoint_policy, meta
@@ -206,11 +213,25 @@ class Experiment:
         if path.is_file():
             state, meta = checkpoint.load_checkpoint(path, self.initial_state(), self.loop.emitter)
             saved = meta.get("simulator")
+            self.simulator_history = list(meta.get("simulator_history", []))
             if saved is not None and self.simulator is not None and saved != self.simulator:
-                raise NcaQdError(
-                    f"{path} was scored with exact simulator {saved}, this nca-qd has "
-                    f"{self.simulator}: its archive would mix two simulators; start a new run "
-                    "(or use the nca-qd version that made it)"
+                if not self.allow_simulator_change:
+                    raise NcaQdError(
+                        f"{path} was scored with exact simulator {saved}, this nca-qd has "
+                        f"{self.simulator}: its archive would mix two simulators; start a new run, "
+                        "use the nca-qd version that made it, or continue anyway with "
+                        "allow_simulator_change=true (recorded in the checkpoint)"
+                    )
+                # The archive keeps the scores of the old simulator; new evaluations use the new
+                # one (the memo's fingerprint drops the old exact runs). Recorded for readers.
+                self.simulator_history.append({"simulator": saved, "until_iteration": int(state.iteration)})
+                log.warning(
+                    "%s was scored with exact simulator %s up to iteration %d; continuing with %s "
+                    "(allow_simulator_change=true)",
+                    path,
+                    saved,
+                    int(state.iteration),
+                    self.simulator,
                 )
             wall = float(meta.get("wall_seconds", 0.0))
         elif legacy.is_file():

@@ -233,6 +233,26 @@ def test_resume_under_another_exact_simulator_is_refused(full_run, tmp_path):
         exp.run(resume=True)
 
 
+def test_allow_simulator_change_continues_and_records_the_old_simulator(full_run, tmp_path):
+    import json
+
+    run = _copy_run(full_run, tmp_path / "sim_ok")
+    arrays, meta = ck.read_checkpoint(run / "checkpoint.npz")
+    meta["simulator"] = "rhcr 1"
+    np.savez(run / "checkpoint.npz", meta=np.asarray(json.dumps(meta)), **arrays)
+    exp = Experiment(_tiny("qd.n_evals=48", "allow_simulator_change=true"), run)
+    exp.simulator = "rhcr 2"
+    final = exp.run(resume=True)
+    assert int(final.iteration) == 6
+    _, meta = ck.read_checkpoint(run / "checkpoint.npz")
+    assert meta["simulator"] == "rhcr 2"
+    assert meta["simulator_history"] == [{"simulator": "rhcr 1", "until_iteration": 5}]
+    # The next resume needs no override: the checkpoint now names the new simulator.
+    again = Experiment(_tiny("qd.n_evals=56"), run)
+    again.simulator = "rhcr 2"
+    assert int(again.run(resume=True).iteration) == 7
+
+
 def test_a_snapshot_keeps_the_best_result_elites_exact_and_the_rest_close(cma_mae_sphere, tmp_path):
     loop, state = cma_mae_sphere
     policy = ck.CheckpointPolicy(exact_elites=3)

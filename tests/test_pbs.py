@@ -97,6 +97,45 @@ def test_a_call_out_of_budget_is_repaired_collision_free():
     check_moves(as_rc(paths, len(CORRIDOR[0]), H), grid(CORRIDOR).astype(bool))
 
 
+def test_the_last_goals_dwell_wins_over_a_passing_agent():
+    # Agent 0 steps out of a pocket onto its only goal and dwells there 5 steps; agent 1 must
+    # cross that cell. RHCR's SIPP does not check the dwell of an agent's last goal, so the
+    # child that puts agent 0 below agent 1 keeps replanning the same colliding path and fails:
+    # agent 1 waits for the dwell instead of agent 0 waiting in its pocket.
+    rows = ["@@@@@@@", "@.....@", "@@@.@@@", "@@@@@@@"]
+    goal = cell(rows, 1, 3)
+    solved, _, paths = plan(rows, [(2, 3), (1, 1)], [[(1, 3)], [(1, 5)]], dwells=[[5], [0]])
+    assert solved
+    check_moves(as_rc(paths, len(rows[0]), planned_prefix(paths)), grid(rows).astype(bool))
+    assert (paths[0, 1:7] == goal).all()  # arrives at once and dwells 5 steps
+    assert goal not in paths[1, :7] and goal in paths[1]  # agent 1 crosses after the dwell
+
+
+@settings(max_examples=60, deadline=None)
+@given(data=st.data(), n=st.integers(2, 8), seed=st.integers(0, 2**32 - 1))
+def test_arriving_on_a_goal_starts_its_dwell(data, n, seed):
+    """As in RHCR's SIPP, an agent that steps onto its current goal dwells there at once for
+    the goal's whole dwell (within the window): it never passes through or leaves early."""
+    rows = ["@@@@@@@", "@.....@", "@.@.@.@", "@.....@", "@@@@@@@"]
+    free = [(r, c) for r in range(len(rows)) for c in range(len(rows[0])) if rows[r][c] != "@"]
+    starts = data.draw(st.permutations(free))[:n]
+    goals = [data.draw(st.lists(st.sampled_from(free), min_size=2, max_size=3)) for _ in range(n)]
+    dwells = [[data.draw(st.integers(0, 4)) for _ in g] for g in goals]
+    solved, _, paths = plan(rows, starts, goals, dwells=dwells, seed=seed)
+    if not solved:  # a repaired call follows the best node only partly
+        return
+    check_moves(as_rc(paths, len(rows[0]), H), grid(rows).astype(bool))
+    for a in range(n):
+        target, dwell = cell(rows, *goals[a][0]), dwells[a][0]
+        if dwell == 0 or cell(rows, *starts[a]) == target:
+            continue
+        hits = np.flatnonzero(paths[a] == target)
+        if hits.size:
+            arrive = int(hits[0])
+            stay = paths[a, arrive : min(arrive + dwell, W) + 1]
+            assert (stay == target).all(), (a, arrive, paths[a])
+
+
 def test_bad_plan_input_is_refused():
     with pytest.raises(ValueError, match="goal off"):
         _core.plan(grid(CORRIDOR), [cell(CORRIDOR, 1, 1)], [[0]])
@@ -104,6 +143,8 @@ def test_bad_plan_input_is_refused():
         _core.plan(
             grid(CORRIDOR), [cell(CORRIDOR, 1, 1)], [[cell(CORRIDOR, 1, 2)]], window=3, executed_steps=4
         )
+    with pytest.raises(ValueError, match="one dwell per goal"):
+        _core.plan(grid(CORRIDOR), [cell(CORRIDOR, 1, 1)], [[cell(CORRIDOR, 1, 2)]], dwells=[[1, 2]])
 
 
 @settings(max_examples=40, deadline=None)

@@ -148,6 +148,7 @@ def _cli_here(args, capsys, monkeypatch):
         (["resume=/nonexistent/run"], "does not exist"),
         (["checkpoint.restart_dtype=int4"], "checkpoint restart_dtype must be int8, float16 or float32"),
         (["checkpoint.exact=maybe"], "checkpoint exact must be true or false"),
+        (["allow_simulator_change=maybe"], "allow_simulator_change must be true or false"),
         (["snapshot.exact_elites=-1"], "checkpoint exact_elites must be a non-negative integer"),
     ],
 )

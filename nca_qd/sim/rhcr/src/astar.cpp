@@ -78,15 +78,20 @@ bool SpaceTimeAStar::plan(const ReservationTable& rt, const AgentQuery& q, int* 
       return true;
     }
 
-    // Dwell macro: stay on the current goal's cell for its whole dwell (clipped to the window).
-    // At the root it only continues a dwell in progress (an agent that has not arrived yet
-    // arrives with its first step, like every other agent).
+    // Dwell macro: as in RHCR's SIPP, arriving on the current goal's cell starts its dwell at
+    // once, and the dwell is the only successor (no passing through, no waiting first). The
+    // dwell of an intermediate goal must fit between reservations, or the arrival is a dead
+    // end; the dwell of the last goal ends the search and is not checked (SIPP returns the
+    // path on arrival), so PBS sees any collision it causes as a conflict. At the root the
+    // macro only continues a dwell in progress (an agent that has not arrived yet arrives
+    // with its first step, like every other agent).
     const bool root = id == 0;
     if (n.gi < Q && q.goals[n.gi].cell == n.cell && q.goals[n.gi].dwell > 0 && (!root || q.start_dwell_left > 0)) {
       const int dwell = root ? q.start_dwell_left : q.goals[n.gi].dwell;
       const int t_end = std::min(n.t + dwell, window_);
+      const bool last_goal = n.gi + 1 == Q;
       bool free = true;
-      if (!(start_priority && n.at_start))
+      if (!(start_priority && n.at_start) && !last_goal)
         for (int t = n.t + 1; t <= t_end && free; ++t) free = rt.vertex_free(t, n.cell);
       if (free) {
         const int gi2 = advance(n.cell, n.gi + 1);
@@ -94,6 +99,7 @@ bool SpaceTimeAStar::plan(const ReservationTable& rt, const AgentQuery& q, int* 
         if (n.t + dwell >= window_ || !seen(t_end, gi2, n.cell, n.at_start))
           push(n.cell, t_end, gi2, n.g + dwell, id, n.at_start);
       }
+      continue;
     }
 
     // Ordinary successors: wait or move to a 4-neighbour, respecting reservations.

@@ -9,8 +9,9 @@
 //   * a goal with dwell 0 is done the moment the agent stands on its cell;
 //   * a goal with dwell d > 0 is done after the agent arrives and then stays d more
 //     timesteps without leaving. A* models this with a "dwell macro" successor (d waits in
-//     one edge); plain moves out of the goal cell stay available, so a blocked dwell never
-//     makes the agent unplannable.
+//     one edge). As in RHCR's SIPP, arriving on the goal starts the dwell (the macro is the
+//     arrival's only successor); an intermediate goal's dwell must fit between reservations,
+//     the last goal's dwell is not checked (PBS then sees any collision as a conflict).
 // Like RHCR's SIPP, a path ends when the agent has done its whole queue (times after that
 // hold kAbsent: the agent reserves nothing there and conflicts with nobody); a path may not
 // end before `min_end`, so every executed step has a cell.

@@ -84,10 +84,12 @@ nb::dict run(nb::ndarray<const uint8_t, nb::ndim<2>, nb::c_contig, nb::device::c
 }
 
 // One planning call on its own (for tests and side-by-side traces): agents at `starts` with
-// goal queues `goals` (cells, dwell 0), `executed_steps` to be executed.
+// goal queues `goals` (cells) with their dwell times `dwells` (empty: all 0), `executed_steps`
+// to be executed.
 nb::dict plan(nb::ndarray<const uint8_t, nb::ndim<2>, nb::c_contig, nb::device::cpu> traversable,
               std::vector<int> starts, std::vector<std::vector<int>> goals, int window, int executed_steps,
-              int64_t max_nodes, double time_limit_s, bool prioritize_start, uint64_t seed) {
+              int64_t max_nodes, double time_limit_s, bool prioritize_start, uint64_t seed,
+              std::vector<std::vector<int>> dwells) {
   const int rows = static_cast<int>(traversable.shape(0)), cols = static_cast<int>(traversable.shape(1));
   const int n = static_cast<int>(starts.size());
   if (static_cast<int>(goals.size()) != n) throw std::invalid_argument("one goal list per start");
@@ -101,15 +103,23 @@ nb::dict plan(nb::ndarray<const uint8_t, nb::ndim<2>, nb::c_contig, nb::device::
     for (int c : g)
       if (c < 0 || c >= rows * cols || !free[c]) throw std::invalid_argument("goal off the traversable tiles");
   }
+  if (!dwells.empty()) {
+    if (dwells.size() != goals.size()) throw std::invalid_argument("one dwell list per goal list");
+    for (int a = 0; a < n; ++a) {
+      if (dwells[a].size() != goals[a].size()) throw std::invalid_argument("one dwell per goal");
+      for (int d : dwells[a])
+        if (d < 0) throw std::invalid_argument("dwell must be >= 0");
+    }
+  }
   rhcr::Grid grid(rows, cols, std::move(free));
   rhcr::DistanceCache distances(grid);
   std::vector<rhcr::AgentQuery> queries(n);
   for (int a = 0; a < n; ++a) {
     queries[a].start = starts[a];
     queries[a].min_end = executed_steps;
-    for (int c : goals[a]) {
-      queries[a].goals.push_back({c, 0});
-      queries[a].dist.push_back(distances.get(c));
+    for (size_t i = 0; i < goals[a].size(); ++i) {
+      queries[a].goals.push_back({goals[a][i], dwells.empty() ? 0 : dwells[a][i]});
+      queries[a].dist.push_back(distances.get(goals[a][i]));
     }
   }
   rhcr::WindowedPBS pbs(grid, n, window);
@@ -135,7 +145,7 @@ nb::dict plan(nb::ndarray<const uint8_t, nb::ndim<2>, nb::c_contig, nb::device::
 
 NB_MODULE(_core, m) {
   m.doc() = "Compiled RHCR lifelong-MAPF simulator (windowed PBS over space-time A*).";
-  m.attr("VERSION") = 2;  // bump when a change alters simulated outcomes
+  m.attr("VERSION") = 3;  // bump when a change alters simulated outcomes
   m.def("run", &run, "traversable"_a, "class_cells"_a, "class_weights"_a, "class_dwell"_a, "cycle"_a,
         "n_agents"_a, "horizon"_a, "seed"_a, "window"_a = 10, "replan"_a = 5, "time_limit_s"_a = 0.0,
         "pbs_max_nodes"_a = 0, "record_paths"_a = false, "plan_time_limit_s"_a = 60.0,
@@ -143,5 +153,6 @@ NB_MODULE(_core, m) {
         "Run one simulation; returns a dict of figures and NumPy arrays. Releases the GIL.");
   m.def("plan", &plan, "traversable"_a, "starts"_a, "goals"_a, "window"_a = 10, "executed_steps"_a = 5,
         "max_nodes"_a = 0, "time_limit_s"_a = 60.0, "prioritize_start"_a = true, "seed"_a = 0,
+        "dwells"_a = std::vector<std::vector<int>>(),
         "One windowed PBS call: dict(solved, nodes, paths [agents, window + 1], -1 after a path's end).");
 }

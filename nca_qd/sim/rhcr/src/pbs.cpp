@@ -97,7 +97,7 @@ bool WindowedPBS::waits_at_start(const int* p, int cell, int t) const {
 }
 
 // RHCR's choice of who gives way in each conflict (find_replan_agents).
-void WindowedPBS::add_replans(Node& n, const std::vector<Conflict>& conflicts, std::set<int>& replan) {
+void WindowedPBS::add_replans(Node& n, const std::vector<Conflict>& conflicts, std::unordered_set<int>& replan) {
   for (const Conflict& c : conflicts) {
     if (replan.count(c.a1) || replan.count(c.a2)) continue;
     if (prioritize_start_ && waits_at_start(path(n, c.a1), c.v1, c.t)) {
@@ -149,7 +149,10 @@ bool WindowedPBS::find_path(Node& n, int agent, const std::vector<AgentQuery>& q
 bool WindowedPBS::make_consistent(Node& n, int agent, const std::vector<AgentQuery>& queries) {
   build_graph(n);
   for (int a : n.touched) touched_flag_[a] = 1;
-  std::set<int> replan;
+  // RHCR keeps the agents to replan in an unordered_set and always takes begin(): with
+  // libstdc++ that is roughly the most recently added agent, not the smallest id. The same
+  // container, filled and emptied in the same sequence, replans in the reference's order.
+  std::unordered_set<int> replan;
   if (agent >= 0) replan.insert(agent);
   add_replans(n, n.conflicts, replan);
   bool ok = true;
@@ -161,7 +164,7 @@ bool WindowedPBS::make_consistent(Node& n, int agent, const std::vector<AgentQue
       break;
     }
     const int a = *replan.begin();
-    replan.erase(replan.begin());
+    replan.erase(a);
     ++count;
     if (!find_path(n, a, queries, n_agents_)) {
       ok = false;

@@ -11,7 +11,9 @@
 //   of a new conflict that must give way: with prioritize_start, the one that runs into an
 //   agent still waiting on its start cell; otherwise the lower one of an ordered pair.
 //   Conflicts between unordered agents stay for later expansions. A child fails when an agent
-//   cannot be planned or when it replans more than five times per agent it touched.
+//   cannot be planned or when it replans more than five times per agent it touched. The agents
+//   waiting to be replanned sit in an unordered_set and the first in its iteration order goes
+//   next, as in RHCR (with libstdc++, roughly the most recently added one).
 // * Depth first: of two children, the one with the smaller total cost (then fewer conflicts)
 //   is explored first. The search ends at the first conflict-free node.
 // * Every replanned agent avoids the paths of all agents above it and, with prioritize_start,
@@ -28,6 +30,7 @@
 #include <chrono>
 #include <cstdint>
 #include <set>
+#include <unordered_set>
 #include <utility>
 #include <vector>
 
@@ -85,7 +88,7 @@ class WindowedPBS {
   bool conflict_between(const Node& n, int a1, int a2, Conflict& c) const;
   void conflicts_of(const Node& n, int agent, std::vector<Conflict>& out) const;
   bool waits_at_start(const int* p, int cell, int t) const;
-  void add_replans(Node& n, const std::vector<Conflict>& conflicts, std::set<int>& replan);
+  void add_replans(Node& n, const std::vector<Conflict>& conflicts, std::unordered_set<int>& replan);
   bool find_path(Node& n, int agent, const std::vector<AgentQuery>& queries, int n_planned);
   bool make_consistent(Node& n, int agent, const std::vector<AgentQuery>& queries);
   const Conflict& choose_conflict(Node& n) const;
