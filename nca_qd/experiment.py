@@ -254,7 +254,10 @@ class Experiment:
     def run(self, resume: bool = False) -> QDState:
         """Run (or continue) until ``qd.n_evals`` evaluations; returns the final state."""
         self.run_dir.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(self.run_dir / CONFIG_FILE, OmegaConf.to_yaml(self.cfg))
+        # allow_simulator_change is one resume's decision: the saved config never carries it, so
+        # a later resume under yet another simulator is refused again.
+        saved = OmegaConf.masked_copy(self.cfg, [k for k in self.cfg if k != "allow_simulator_change"])
+        atomic_write_text(self.run_dir / CONFIG_FILE, OmegaConf.to_yaml(saved))
         if resume:
             state, wall = self.load_checkpoint()
             log.info("resuming %s at iteration %d", self.run_dir, int(state.iteration))

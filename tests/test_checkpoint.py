@@ -247,6 +247,7 @@ def test_allow_simulator_change_continues_and_records_the_old_simulator(full_run
     _, meta = ck.read_checkpoint(run / "checkpoint.npz")
     assert meta["simulator"] == "rhcr 2"
     assert meta["simulator_history"] == [{"simulator": "rhcr 1", "until_iteration": 5}]
+    assert "allow_simulator_change" not in (run / "config.yaml").read_text()  # one resume's decision
     # The next resume needs no override: the checkpoint now names the new simulator.
     again = Experiment(_tiny("qd.n_evals=56"), run)
     again.simulator = "rhcr 2"
