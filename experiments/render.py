@@ -82,7 +82,7 @@ def render_elites(out: str | Path, run_dir: str | Path, elites, size: str = "tra
     if len(cells) == 0:
         raise NcaQdError(f"{run_dir}: the archive is empty")
     domain = make_domain(cfg.domain)
-    regions = generate(domain, make_generator(domain), archive["genotypes"][cells], size)
+    regions = generate(domain, make_generator(domain, cfg.algo.name), archive["genotypes"][cells], size)
     layouts = [domain.assemble(r) for r in regions]
     titles = [f"cell {c}: f={archive['objective'][c]:.3g}" for c in cells]
     render_layouts(out, layouts, domain.layout_tiles, domain.palette, titles)

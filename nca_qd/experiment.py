@@ -138,14 +138,43 @@ class Experiment:
         validate_config(cfg)
         self.cfg, self.run_dir = cfg, Path(run_dir)
         self.domain: Domain = make_domain(cfg.domain)
-        self.generator = make_generator(self.domain)
-        emitter = make_emitter(cfg.algo, cfg.qd, self.generator.n_params)
+        self.generator = make_generator(self.domain, cfg.algo.name)
         spec = archive_spec(cfg.algo.name, cfg.domain, cfg.qd)
         self.objective = make_objective(self.domain, self.generator, cfg)
-        self.loop = QDLoop(emitter, self.objective, self.generator.n_params, spec)
-        # The scorer's own per-iteration figures (exact runs, screen error, stage timings).
-        self.metric_columns = METRIC_COLUMNS + list(self.objective.metric_names)
-        self.n_iterations = math.ceil(cfg.qd.n_evals / self.loop.batch_size)
+        if cfg.algo.name == "dsage":  # direct search over layouts with a deep surrogate
+            from nca_qd.qd.dsage import DSAGELoop
+
+            algo = OmegaConf.to_container(cfg.algo, resolve=True)
+            per_domain = OmegaConf.to_container(cfg.domain.get("dsage") or {}, resolve=True)
+            if algo.get("downsample") is None:
+                algo["downsample"] = per_domain.get("downsample")
+            if algo["downsample"] is None:
+                raise NcaQdError(f"algo=dsage needs algo.downsample (domain {cfg.domain.name} sets none)")
+            obj_range = per_domain.get("objective_range") or list(cfg.domain.objective_range)
+            if obj_range[1] is None:
+                raise NcaQdError("algo=dsage needs domain.dsage.objective_range with an upper bound")
+            self.loop = DSAGELoop(
+                self.objective,
+                self.domain.gen_shape("train"),
+                self.domain.n_tiles,
+                spec,
+                (float(obj_range[0]), float(obj_range[1])),
+                int(cfg.qd.n_evals),
+                algo,
+            )
+        else:
+            emitter = make_emitter(cfg.algo, cfg.qd, self.generator.n_params)
+            self.loop = QDLoop(emitter, self.objective, self.generator.n_params, spec)
+        # The algorithm's and the scorer's own per-iteration figures (surrogate error; exact
+        # runs, screen error, stage timings).
+        self.metric_columns = (
+            METRIC_COLUMNS + list(getattr(self.loop, "metric_names", ())) + list(self.objective.metric_names)
+        )
+        # DSAGE's outer iterations evaluate varying numbers of layouts: its end is a budget of
+        # evaluations; the other algorithms' a number of equal iterations.
+        self.n_iterations = (
+            None if hasattr(self.loop, "finished") else math.ceil(cfg.qd.n_evals / self.loop.batch_size)
+        )
         self.checkpoint_policy = checkpoint.CheckpointPolicy.from_config(
             OmegaConf.to_container(cfg.checkpoint) if cfg.get("checkpoint") is not None else None
         )
@@ -179,6 +208,8 @@ class Experiment:
         # so a kill between the two writes loses nothing and replays the same search.
         t0 = time.perf_counter()
         self.objective.save_state(self.run_dir)
+        if hasattr(self.loop, "save_state"):  # DSAGE's training data
+            self.loop.save_state(self.run_dir)
         meta = {
             "wall_seconds": float(wall),
             "algo": str(self.cfg.algo.name),
@@ -241,6 +272,8 @@ class Experiment:
         else:
             raise NcaQdError(f"{self.run_dir}: no checkpoint to resume from ({CHECKPOINT_FILE} missing)")
         self.objective.restore_state(self.run_dir, int(state.iteration))
+        if hasattr(self.loop, "restore_state"):
+            self.loop.restore_state(self.run_dir, state)
         return state, wall
 
     def _metrics_rows(self, upto: int) -> list[dict[str, str]]:
@@ -281,19 +314,21 @@ class Experiment:
 
         cfg = self.cfg
         start_iter = int(state.iteration)
+        by_evals = self.n_iterations is None
         bar = tqdm(
-            total=self.n_iterations,
-            initial=start_iter,
+            total=int(cfg.qd.n_evals) if by_evals else self.n_iterations,
+            initial=int(state.evaluations) if by_evals else start_iter,
             disable=not cfg.qd.progress,
             desc=f"{cfg.algo.name} {cfg.domain.name}",
-            unit="it",
+            unit="eval" if by_evals else "it",
             dynamic_ncols=True,
         )
+        every = int(cfg.algo.get("checkpoint_every", cfg.qd.checkpoint_every))
         last_saved = start_iter
         try:
             with (self.run_dir / METRICS_FILE).open("a", newline="") as fh:
                 writer = csv.DictWriter(fh, fieldnames=self.metric_columns, extrasaction="ignore")
-                while int(state.iteration) < self.n_iterations:
+                while not self._finished(state):
                     t0 = time.perf_counter()
                     new_state, metrics, _ = self.loop.step(state)
                     metrics["wall_seconds"] = wall + time.perf_counter() - t0
@@ -301,17 +336,18 @@ class Experiment:
                     fh.flush()
                     # Only now does the new state count: a Ctrl-C before this line leaves a
                     # metrics row past the checkpoint, which resume drops and recomputes.
+                    done = int(new_state.evaluations) - int(state.evaluations) if by_evals else 1
                     state, wall = new_state, metrics["wall_seconds"]
-                    bar.update(1)
+                    bar.update(done)
                     bar.set_postfix(qd=f"{metrics['qd_score']:.4g}", cov=f"{metrics['coverage']:.3f}")
                     it = metrics["iteration"]
-                    if it % cfg.qd.checkpoint_every == 0 or it == self.n_iterations:
+                    if it % every == 0 or self._finished(state):
                         self.save_checkpoint(state, wall)
                         last_saved = it
                         log.info(
-                            "iter %d/%d evals %d qd_score %.4g coverage %.4f best %.4g (%.3f s/iter)",
+                            "iter %d/%s evals %d qd_score %.4g coverage %.4f best %.4g (%.3f s/iter)",
                             it,
-                            self.n_iterations,
+                            "?" if by_evals else self.n_iterations,
                             metrics["evaluations"],
                             metrics["qd_score"],
                             metrics["coverage"],
@@ -325,6 +361,11 @@ class Experiment:
             raise
         bar.close()
         return state
+
+    def _finished(self, state: QDState) -> bool:
+        if self.n_iterations is None:
+            return self.loop.finished(state)
+        return int(state.iteration) >= self.n_iterations
 
     # --- outputs -------------------------------------------------------------------------
     def write_outputs(self, state: QDState) -> None:

@@ -12,14 +12,42 @@ from __future__ import annotations
 import time
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from nca_qd.domains.base import Domain
+from nca_qd.errors import NcaQdError
 from nca_qd.interfaces import EvalBatch, HostEvaluator
 from nca_qd.nca import NCAGenerator
 
 
-def make_generator(domain: Domain) -> NCAGenerator:
+class TileLayouts:
+    """The identity "generator" of a direct search over layouts (DSAGE): a solution is the
+    generated region itself, ``[d = H * W]`` tile indices (rounded and clipped to the tiles).
+    It exists at the training size only: a layout cannot grow like an NCA's."""
+
+    scalable = False
+
+    def __init__(self, n_tiles: int, shape: tuple[int, int]):
+        self.n_tiles, self.shape = int(n_tiles), (int(shape[0]), int(shape[1]))
+        self.n_params = self.shape[0] * self.shape[1]
+
+    def generate(self, solutions, seed, n_iters: int | None = None):
+        """Solutions ``[b, d]`` -> regions ``[b, H, W]``; ``seed`` only fixes the shape asked for."""
+        shape = tuple(np.shape(seed))
+        if shape != self.shape:
+            raise NcaQdError(
+                f"a directly searched layout is {self.shape[0]}x{self.shape[1]}; it cannot be "
+                f"generated at {shape[0]}x{shape[1]} (only NCA generators scale)"
+            )
+        x = jnp.clip(jnp.round(jnp.asarray(solutions)), 0, self.n_tiles - 1).astype(jnp.int32)
+        return x.reshape((-1, *self.shape))
+
+
+def make_generator(domain: Domain, algo: str | None = None) -> NCAGenerator | TileLayouts:
+    """The NCA generator of the domain, or for ``algo="dsage"`` the direct tile layouts."""
+    if algo == "dsage":
+        return TileLayouts(domain.n_tiles, domain.gen_shape("train"))
     return NCAGenerator(n_tiles=domain.n_tiles)
 
 
@@ -45,7 +73,7 @@ class Objective:
     across a resume; ``close()`` releases the scorer's worker pools.
     """
 
-    def __init__(self, domain: Domain, generator: NCAGenerator, run_cfg=None):
+    def __init__(self, domain: Domain, generator: NCAGenerator | TileLayouts, run_cfg=None):
         self.seed = domain.seed(domain.gen_shape("train"))
         self.n_iters = domain.nca_iters("train")
         self.generator = generator

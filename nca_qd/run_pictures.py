@@ -44,7 +44,7 @@ def write_run_pictures(
     if archives is None:
         archives = {which: load_archive(run_dir, which) for which in ARCHIVES}
     domain = domain if domain is not None else make_domain(cfg.domain)
-    generator = generator if generator is not None else make_generator(domain)
+    generator = generator if generator is not None else make_generator(domain, cfg.algo.name)
     written = draw_archives(out, cfg, archives, domain.name)
     if (run_dir / METRICS_FILE).is_file():
         from nca_qd import viz
@@ -82,7 +82,8 @@ def draw_best_layouts(
     out: Path, cfg: DictConfig, archive: Mapping[str, Any], domain: Domain, generator: Any
 ) -> list[Path]:
     """``best_<size>.png`` (and ``best_<size>_repaired.png``): the ``output.n_best`` best
-    elites generated at the training and the evaluation size."""
+    elites generated at the training and the evaluation size (directly searched layouts, which
+    do not scale: the training size only)."""
     from nca_qd import viz
 
     cells = select_elites(np.asarray(archive["objective"]), int(cfg.output.n_best))
@@ -90,7 +91,8 @@ def draw_best_layouts(
         return []
     genotypes = np.asarray(archive["genotypes"][cells])
     written = []
-    for which in ("train", "eval"):
+    sizes = ("train", "eval") if getattr(generator, "scalable", True) else ("train",)
+    for which in sizes:
         layouts = [domain.assemble(r) for r in generate(domain, generator, genotypes, which)]
         h, w = layouts[0].shape
         path = out / f"best_{which}.png"

@@ -184,6 +184,14 @@ def run_agent(
 # --------------------------------------------------------------------------- the domain
 
 
+def wants_ancillary(run_cfg: Mapping[str, Any] | None) -> bool:
+    """Whether the run's algorithm learns an ancillary target (``algo.ancillary``, DSAGE)."""
+    try:
+        return bool(run_cfg["algo"]["ancillary"])  # type: ignore[index]
+    except (KeyError, TypeError):
+        return False
+
+
 def _add_border(region):
     pad = [(0, 0)] * (region.ndim - 2) + [(1, 1), (1, 1)]
     if isinstance(region, jax.Array):
@@ -229,9 +237,13 @@ class MazeDomain(Domain):
         return horizon_for((gen_shape[0] + 2, gen_shape[1] + 2), self.horizon_factor)
 
     def make_evaluator(self, run_cfg: Mapping[str, Any] | None = None) -> Evaluator:
+        """The jitted scorer. With ``algo.ancillary`` set in ``run_cfg`` (DSAGE) it also returns
+        ``extras["ancillary"] [b, h, w]``: the agent's visits per interior tile, averaged over
+        episodes (DSAGE's agent occupancy)."""
         policy = maze_agent.get_policy(self.agent_kind)
         names = self.measure_names
         episodes, factor, k = self.episodes, self.horizon_factor, self.n_tiles
+        ancillary = wants_ancillary(run_cfg)
 
         @jax.jit
         def evaluate(regions, key):
@@ -244,7 +256,9 @@ class MazeDomain(Domain):
             goal = jnp.where(goal >= 0, goal + 1, goal)
             solvable = length > 0
             keys = jax.random.split(key, b)
-            res = maze_agent.rollout_batch(policy, layouts, start, goal, keys, episodes, horizon, solvable)
+            res = maze_agent.rollout_batch(
+                policy, layouts, start, goal, keys, episodes, horizon, solvable, count_visits=ancillary
+            )
             path_length = jnp.mean(res.lengths.astype(jnp.float32), axis=1)
             values = {
                 "n_walls": tile_count(regions, WALL),
@@ -260,6 +274,8 @@ class MazeDomain(Domain):
                 "longest_shortest_path": length,
                 "episode_lengths": res.lengths,
             }
+            if ancillary:
+                extras["ancillary"] = res.visits[:, 1:-1, 1:-1] / episodes
             return solvable.astype(jnp.float32), measures, extras
 
         def evaluator(regions, key, context=None) -> EvalBatch:  # context: not needed here

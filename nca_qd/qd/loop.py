@@ -175,7 +175,7 @@ def make_emitter(algo_cfg: Any, qd_cfg: Any, dim: int):
             float(algo_cfg["line_sigma"]),
             int(algo_cfg["n_initial"]),
         )
-    raise NcaQdError(f"unknown algorithm {name!r} (known: cma_mae, map_elites, cma_es)")
+    raise NcaQdError(f"unknown algorithm {name!r} (known: cma_mae, map_elites, cma_es, dsage)")
 
 
 def archive_spec(algo_name: str, domain_cfg: Any, qd_cfg: Any) -> ArchiveSpec:

@@ -303,6 +303,9 @@ def get_policy(kind: str) -> Policy:
 class Rollout(NamedTuple):
     lengths: jax.Array  # [E] int32 actions until the goal, horizon where missed
     reached: jax.Array  # [E] bool
+    # [H, W] (or [B, H, W]) float32: visits per tile summed over episodes (start and every
+    # position until the goal or the horizon), only with ``count_visits``
+    visits: jax.Array | None = None
 
 
 def _episode_init(policy: Policy, key: jax.Array, start: jax.Array):
@@ -360,6 +363,7 @@ def rollout_batch(
     horizon: int,
     active: jax.Array | None = None,
     detect_cycles: bool = True,
+    count_visits: bool = False,
 ) -> Rollout:
     """:func:`rollout` of ``B`` mazes at once: ``layouts [B, H, W]``, ``starts``/``goals`` ``[B, 2]``,
     ``keys [B]``, ``active [B]`` -> lengths and reached ``[B, episodes]``.
@@ -372,6 +376,11 @@ def rollout_batch(
     (state, memory) of every episode is saved at t = 1, 2, 4, 8, ...; meeting it again means a
     cycle without the goal) ends hopeless episodes early. The result is exactly the same, only
     the loop stops sooner (a wall follower circling an island no longer costs the full horizon).
+
+    ``count_visits`` also returns ``visits [B, H, W]``: how often the agents of all episodes
+    stood on each tile before an action (the start included, the goal reached not; an inactive
+    maze has none). DSAGE's surrogate learns it as its ancillary target (agent occupancy). Cycle
+    detection must be off for it: a cut-short episode would count fewer visits than it makes.
     """
     b = layouts.shape[0]
     active = jnp.ones((b,), bool) if active is None else jnp.asarray(active, bool)
@@ -389,13 +398,20 @@ def rollout_batch(
 
     step_all = jax.vmap(jax.vmap(step_one, in_axes=(None, 0, 0, 0, None)), in_axes=(0, 0, 0, 0, None))
 
-    detect = bool(detect_cycles and policy.deterministic)
+    detect = bool(detect_cycles and policy.deterministic and not count_visits)
+    h, w = layouts.shape[1:]
+    b_idx = jnp.broadcast_to(jnp.arange(b)[:, None], (b, episodes))
+
+    def count(visits, pos, live):
+        return visits.at[b_idx, pos[..., 0], pos[..., 1]].add(live.astype(jnp.float32))
 
     def cond(c):
         return (c[0] < horizon) & ~jnp.all(c[3])
 
     def body(c):
-        t, state, memory, done, hit, lengths, saved = c
+        t, state, memory, done, hit, lengths, saved, visits = c
+        if count_visits:  # where each live agent stands before it acts (as DSAGE counts)
+            visits = count(visits, state.pos, ~done)
         state, memory = step_all(envs, state, memory, k_steps, t)
         reached = jnp.all(state.pos == envs.goal[:, None, :], axis=-1) & ~done
         lengths = jnp.where(reached, t + 1, lengths)
@@ -409,12 +425,13 @@ def rollout_batch(
             t1 = t + 1
             checkpoint = (t1 & (t1 - 1)) == 0  # t + 1 is a power of two
             saved = jax.tree.map(lambda new, old: jnp.where(checkpoint, new, old), (state, memory), saved)
-        return t + 1, state, memory, done, hit, lengths, saved
+        return t + 1, state, memory, done, hit, lengths, saved, visits
 
     saved = (state, memory) if detect else None
-    init = (jnp.array(0, jnp.int32), state, memory, done, at_goal, lengths, saved)
-    _, _, _, _, hit, lengths, _ = jax.lax.while_loop(cond, body, init)
-    return Rollout(lengths, hit)
+    visits = jnp.zeros((b, h, w), jnp.float32) if count_visits else None
+    init = (jnp.array(0, jnp.int32), state, memory, done, at_goal, lengths, saved, visits)
+    _, _, _, _, hit, lengths, _, visits = jax.lax.while_loop(cond, body, init)
+    return Rollout(lengths, hit, visits)
 
 
 def record_episode(

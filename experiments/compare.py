@@ -1,0 +1,36 @@
+"""Compare QD algorithms over seeds: the QD-score / coverage table and curves of the paper's
+appendix.
+
+    python -m experiments.compare runs=[runs/maze_cma_mae_s0,runs/maze_dsage_s0,...] out=cmp/
+    python -m experiments.compare runs=results/compare_maze        # every run below a folder
+
+Runs are grouped by domain (with its measures) and algorithm; each group's final QD-score and
+coverage are reported as mean ± standard error over its runs (``compare.md``, ``compare.csv``)
+and drawn over evaluations with 95 % intervals (``compare.png``). See :mod:`nca_qd.compare`.
+"""
+
+from __future__ import annotations
+
+from omegaconf import ListConfig
+
+from experiments.cli import compose_config, main_guard
+from nca_qd.compare import compare
+from nca_qd.errors import NcaQdError
+
+
+def main(argv: list[str]) -> int:
+    cfg = compose_config("compare", argv)
+    runs = cfg.runs
+    if runs is None:
+        raise NcaQdError("give runs=<run dir or folder> or runs=[dir,dir,...]")
+    paths = list(runs) if isinstance(runs, (list, ListConfig)) else [runs]
+    out = cfg.out or (paths[0] if len(paths) == 1 else "compare")
+    table, files = compare(paths, out)
+    print(table, end="")
+    for f in files:
+        print(f)
+    return 0
+
+
+if __name__ == "__main__":
+    main_guard(main)()

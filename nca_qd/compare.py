@@ -1,0 +1,200 @@
+"""Compare QD algorithms across seeds: the paper's QD-score / coverage table and curves.
+
+Reads run directories (each with ``config.yaml`` and ``metrics.csv``), groups them by domain
+(with its measures) and algorithm, and reports for each group the final QD-score and coverage
+of the result archive as mean +- standard error over its runs (the paper's appendix table), and
+both over evaluations with 95 % confidence intervals (Student t over the runs) on a common grid
+of evaluations (each run's curve is a step function: what its archive held after each
+iteration).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import warnings
+from collections import defaultdict
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from nca_qd.errors import NcaQdError
+from nca_qd.run_dir import METRICS_FILE, load_run_config
+
+METRICS = ("qd_score", "coverage")
+
+
+@dataclass
+class RunCurve:
+    """One run's result-archive metrics after each iteration."""
+
+    path: Path
+    group: tuple[str, str]  # (domain with measures, algorithm)
+    seed: int
+    evaluations: np.ndarray
+    values: dict[str, np.ndarray]
+
+
+def read_run(run_dir: str | Path) -> RunCurve:
+    """A run directory's curve; one clear error when it is not a run with metrics."""
+    run_dir = Path(run_dir)
+    cfg = load_run_config(run_dir)
+    path = run_dir / METRICS_FILE
+    if not path.is_file():
+        raise NcaQdError(f"{run_dir}: no {METRICS_FILE}")
+    with path.open() as fh:
+        rows = list(csv.DictReader(fh))
+    if not rows:
+        raise NcaQdError(f"{run_dir}: {METRICS_FILE} has no iterations yet")
+    measures = "+".join(cfg.domain.measures.names)
+    return RunCurve(
+        path=run_dir,
+        group=(f"{cfg.domain.name} ({measures})", str(cfg.algo.name)),
+        seed=int(cfg.seed),
+        evaluations=np.asarray([float(r["evaluations"]) for r in rows]),
+        values={m: np.asarray([float(r[m]) for r in rows]) for m in METRICS},
+    )
+
+
+def find_runs(paths: Iterable[str | Path]) -> list[Path]:
+    """Each path that is a run directory, or the run directories below it."""
+    found: list[Path] = []
+    for p in paths:
+        p = Path(p)
+        if not p.exists():
+            raise NcaQdError(f"{p} does not exist")
+        if (p / METRICS_FILE).is_file():
+            found.append(p)
+        else:
+            found += sorted(m.parent for m in p.rglob(METRICS_FILE))
+    if not found:
+        raise NcaQdError(f"no run directories (with {METRICS_FILE}) in {[str(p) for p in paths]}")
+    return found
+
+
+def _t95(n: int) -> float:
+    """Two-sided 95 % Student t quantile for n - 1 degrees of freedom (normal beyond 30)."""
+    table = {1: 12.706, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 8: 2.306, 9: 2.262}
+    if n - 1 in table:
+        return table[n - 1]
+    return 2.0 if n - 1 < 30 else 1.96
+
+
+def mean_se(values: Sequence[float]) -> tuple[float, float]:
+    """Mean and standard error (0 for a single run)."""
+    v = np.asarray(values, float)
+    return float(v.mean()), float(v.std(ddof=1) / math.sqrt(v.size)) if v.size > 1 else 0.0
+
+
+def step_values(curve: RunCurve, metric: str, grid: np.ndarray) -> np.ndarray:
+    """The run's metric at each evaluation count of ``grid`` (NaN before its first iteration)."""
+    idx = np.searchsorted(curve.evaluations, grid, side="right") - 1
+    out = np.where(idx >= 0, curve.values[metric][np.maximum(idx, 0)], np.nan)
+    return out
+
+
+@dataclass
+class GroupSummary:
+    group: tuple[str, str]
+    runs: list[RunCurve]
+    final: dict[str, tuple[float, float]]  # metric -> (mean, s.e.) at the runs' last iteration
+    evaluations: float  # the smallest final evaluation count among the runs
+
+
+def summarise(curves: Sequence[RunCurve]) -> list[GroupSummary]:
+    """One summary per (domain, algorithm) group, ordered by domain then by final QD-score."""
+    groups: dict[tuple[str, str], list[RunCurve]] = defaultdict(list)
+    for c in curves:
+        groups[c.group].append(c)
+    out = []
+    for group, runs in groups.items():
+        final = {m: mean_se([r.values[m][-1] for r in runs]) for m in METRICS}
+        out.append(GroupSummary(group, runs, final, float(min(r.evaluations[-1] for r in runs))))
+    return sorted(out, key=lambda s: (s.group[0], -s.final["qd_score"][0]))
+
+
+def table_markdown(summaries: Sequence[GroupSummary]) -> str:
+    """The paper's appendix table: domain, algorithm, runs, evaluations, QD-score, coverage."""
+    lines = [
+        "| Domain | Algorithm | Runs (seeds) | Evaluations | QD-score | Archive coverage |",
+        "|---|---|---|---|---|---|",
+    ]
+    for s in summaries:
+        seeds = ",".join(str(r.seed) for r in sorted(s.runs, key=lambda r: r.seed))
+        q, c = s.final["qd_score"], s.final["coverage"]
+        lines.append(
+            f"| {s.group[0]} | {s.group[1]} | {len(s.runs)} ({seeds}) | {s.evaluations:,.0f} | "
+            f"{q[0]:,.2f} ± {q[1]:,.2f} | {c[0]:.3f} ± {c[1]:.3f} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def write_csv(path: Path, summaries: Sequence[GroupSummary]) -> None:
+    with path.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(
+            [
+                "domain",
+                "algorithm",
+                "runs",
+                "evaluations",
+                "qd_score",
+                "qd_score_se",
+                "coverage",
+                "coverage_se",
+            ]
+        )
+        for s in summaries:
+            q, c = s.final["qd_score"], s.final["coverage"]
+            w.writerow([s.group[0], s.group[1], len(s.runs), s.evaluations, q[0], q[1], c[0], c[1]])
+
+
+def plot_curves(path: Path, summaries: Sequence[GroupSummary], points: int = 200) -> None:
+    """QD-score and coverage over evaluations per domain: mean and 95 % interval per algorithm."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from nca_qd.viz import save_figure
+
+    domains = sorted({s.group[0] for s in summaries})
+    fig, axes = plt.subplots(len(domains), 2, figsize=(10, 3.4 * len(domains)), squeeze=False)
+    for row, domain in zip(axes, domains):
+        for s in (s for s in summaries if s.group[0] == domain):
+            grid = np.linspace(0, s.evaluations, points)
+            for ax, metric in zip(row, METRICS):
+                v = np.stack([step_values(r, metric, grid) for r in s.runs])
+                with warnings.catch_warnings():  # grid points before any run's first iteration
+                    warnings.simplefilter("ignore", RuntimeWarning)
+                    mean = np.nanmean(v, axis=0)
+                    se = np.nanstd(v, axis=0, ddof=1) / np.sqrt(np.maximum(np.sum(np.isfinite(v), axis=0), 1))
+                line = ax.plot(grid, mean, label=f"{s.group[1]} (n={len(s.runs)})")[0]
+                if len(s.runs) > 1:
+                    n = np.sum(np.isfinite(v), axis=0)
+                    half = np.asarray([_t95(int(k)) if k > 1 else np.nan for k in n]) * se
+                    ax.fill_between(grid, mean - half, mean + half, alpha=0.2, color=line.get_color())
+        for ax, metric in zip(row, METRICS):
+            ax.set_title(f"{domain}: {metric.replace('_', '-')}", fontsize=9)
+            ax.set_xlabel("evaluations")
+            ax.grid(alpha=0.3)
+        row[0].legend(fontsize=8)
+    save_figure(fig, path)
+
+
+def compare(paths: Iterable[str | Path], out: str | Path) -> tuple[str, list[Path]]:
+    """Aggregate the runs at ``paths`` into ``out``: ``compare.md``, ``compare.csv`` and
+    ``compare.png``. Returns the table and the files written."""
+    curves = [read_run(p) for p in find_runs(paths)]
+    summaries = summarise(curves)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    table = table_markdown(summaries)
+    from nca_qd.io import atomic_write_text
+
+    atomic_write_text(out / "compare.md", table)
+    write_csv(out / "compare.csv", summaries)
+    plot_curves(out / "compare.png", summaries)
+    return table, [out / "compare.md", out / "compare.csv", out / "compare.png"]

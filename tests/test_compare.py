@@ -1,0 +1,50 @@
+"""experiments.compare: runs grouped by domain and algorithm, mean ± s.e. of the final
+QD-score and coverage, curves drawn, bad input one line."""
+
+import numpy as np
+import pytest
+
+from nca_qd.compare import compare, mean_se, read_run, step_values
+from nca_qd.errors import NcaQdError
+
+
+def _fake_run(path, algo, seed, rows, measures=("n_walls", "path_length")):
+    path.mkdir(parents=True)
+    (path / "config.yaml").write_text(
+        f"seed: {seed}\nalgo:\n  name: {algo}\ndomain:\n  name: maze\n  measures:\n"
+        f"    names: [{', '.join(measures)}]\n"
+    )
+    lines = ["iteration,evaluations,qd_score,coverage"]
+    lines += [f"{i + 1},{e},{q},{c}" for i, (e, q, c) in enumerate(rows)]
+    (path / "metrics.csv").write_text("\n".join(lines) + "\n")
+
+
+def test_runs_are_grouped_and_summarised_as_mean_and_standard_error(tmp_path):
+    _fake_run(tmp_path / "a0", "cma_mae", 0, [(150, 10, 0.1), (300, 30, 0.3)])
+    _fake_run(tmp_path / "a1", "cma_mae", 1, [(150, 20, 0.2), (300, 50, 0.5)])
+    _fake_run(tmp_path / "b0", "dsage", 0, [(100, 5, 0.05), (864, 40, 0.4)])
+    _fake_run(tmp_path / "c0", "dsage", 0, [(100, 1, 0.01)], measures=("entropy", "path_length"))
+    table, files = compare([tmp_path], tmp_path / "out")
+    assert all(f.is_file() for f in files)
+    rows = [line for line in table.splitlines() if line.startswith("| maze")]
+    # per domain, the best QD-score first
+    assert rows[0].startswith("| maze (entropy+path_length) | dsage | 1 (0)")
+    assert rows[1].startswith("| maze (n_walls+path_length) | cma_mae | 2 (0,1) | 300 |")
+    assert "40.00 ± 10.00" in rows[1] and "0.400 ± 0.100" in rows[1]
+    assert rows[2].startswith("| maze (n_walls+path_length) | dsage | 1 (0) | 864 | 40.00 ± 0.00")
+
+
+def test_a_curve_is_what_the_archive_held_after_each_iteration(tmp_path):
+    _fake_run(tmp_path / "r", "dsage", 3, [(100, 5, 0.05), (864, 40, 0.4)])
+    curve = read_run(tmp_path / "r")
+    v = step_values(curve, "qd_score", np.asarray([50, 100, 500, 864, 900]))
+    np.testing.assert_array_equal(v[1:], [5, 5, 40, 40])
+    assert np.isnan(v[0])
+    assert mean_se([1.0, 3.0]) == (2.0, 1.0)
+
+
+def test_a_folder_without_runs_is_one_clear_error(tmp_path):
+    with pytest.raises(NcaQdError, match="no run directories"):
+        compare([tmp_path], tmp_path / "out")
+    with pytest.raises(NcaQdError, match="does not exist"):
+        compare([tmp_path / "missing"], tmp_path / "out")
