@@ -1,6 +1,8 @@
 """``make bench``: every benchmark section in turn (each prints its own figures).
 
-python -m benchmarks.run_all [section ...]   # sections: foundation, rhcr, repair, screen, search, checkpoint
+python -m benchmarks.run_all [section ...]
+
+sections: foundation, rhcr, repair, screen, search, checkpoint, dsage
 """
 
 from __future__ import annotations
@@ -10,7 +12,7 @@ import inspect
 import sys
 import time
 
-SECTIONS = ["foundation", "rhcr", "repair", "screen", "search", "checkpoint"]
+SECTIONS = ["foundation", "rhcr", "repair", "screen", "search", "checkpoint", "dsage"]
 
 
 def main(argv: list[str]) -> int:

@@ -25,7 +25,25 @@ from typing import Any, Protocol, runtime_checkable
 import jax
 import numpy as np
 
-__all__ = ["CompactEmitter", "Emitter", "EvalBatch", "Evaluator", "HostEvaluator", "ScoringContext"]
+__all__ = [
+    "CompactEmitter",
+    "Emitter",
+    "EvalBatch",
+    "Evaluator",
+    "HostEvaluator",
+    "ScoringContext",
+    "wants_ancillary",
+]
+
+
+def wants_ancillary(run_cfg: Any) -> bool:
+    """Whether the run's algorithm learns an ancillary per-tile map from the simulation
+    (``algo.ancillary``, DSAGE): then a scorer also returns ``extras["ancillary"] [b, h, w]``
+    over the generated region (the maze agent's occupancy, the robots' tile usage)."""
+    try:
+        return bool(run_cfg["algo"]["ancillary"])
+    except (KeyError, TypeError):
+        return False
 
 
 @dataclass

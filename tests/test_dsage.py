@@ -215,3 +215,32 @@ def test_the_maze_scorers_occupancy_map_counts_every_step_on_empty_tiles_only():
     np.testing.assert_allclose(occupancy.sum(axis=(1, 2))[1:], lengths.mean(axis=1)[1:], rtol=1e-5)
     assert occupancy[0].sum() == 0
     assert (occupancy[regions == 1] == 0).all()
+
+
+def test_the_warehouse_scorers_tile_usage_counts_every_robot_and_no_shelf(tmp_path):
+    from test_scoring import TINY_WAREHOUSE
+
+    from nca_qd.domains import make_domain
+    from nca_qd.scoring.memo import MEMO_FILE, EvalMemo
+
+    cfg = compose_config("run", [*TINY_WAREHOUSE, "algo=dsage", "eval.workers=0"])
+    domain = make_domain(cfg.domain)
+    scorer = domain.make_evaluator(cfg)
+    regions = np.stack([domain.seed(domain.gen_shape("train"))] * 2)
+    regions[1, 2:4, 3:8] = 1  # another layout: more shelves to repair around
+    ev = scorer(regions, jax.random.PRNGKey(3))
+    usage = np.asarray(ev.extras["ancillary"], float)
+    repaired = np.asarray(ev.extras["repaired"])
+    assert usage.shape == regions.shape and np.isfinite(usage).all()
+    region = domain.layout.region(repaired)
+    assert (usage[region == 1] == 0).all()  # nobody stands on a shelf
+    # mean robots per step over the generated region: at most all 10, most of them
+    assert np.all(usage.sum(axis=(1, 2)) <= 10 + 1e-6) and np.all(usage.sum(axis=(1, 2)) > 3)
+    # remembered with the exact runs: a second call reuses them, maps included
+    scorer.save_state(tmp_path)
+    memo = EvalMemo.load(tmp_path / MEMO_FILE, scorer.fingerprint)
+    scorer.memo = memo
+    again = scorer(regions, jax.random.PRNGKey(3))
+    assert again.extras["metrics"]["exact_runs"] == 0
+    np.testing.assert_allclose(np.asarray(again.extras["ancillary"], float), usage, atol=2e-3)
+    scorer.close()

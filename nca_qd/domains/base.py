@@ -20,9 +20,9 @@ from typing import Any
 
 import numpy as np
 
-from nca_qd.interfaces import EvalBatch, Evaluator
+from nca_qd.interfaces import EvalBatch, Evaluator, wants_ancillary
 
-__all__ = ["Domain", "EvalBatch", "Evaluator"]
+__all__ = ["Domain", "EvalBatch", "Evaluator", "wants_ancillary"]
 
 
 class Domain(ABC):

@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nca_qd.domains.base import Domain, EvalBatch, Evaluator
+from nca_qd.domains.base import Domain, EvalBatch, Evaluator, wants_ancillary
 from nca_qd.errors import NcaQdError
 from nca_qd.measures import batch_entropy, tile_count
 from nca_qd.sim import maze_agent
@@ -182,14 +182,6 @@ def run_agent(
 
 
 # --------------------------------------------------------------------------- the domain
-
-
-def wants_ancillary(run_cfg: Mapping[str, Any] | None) -> bool:
-    """Whether the run's algorithm learns an ancillary target (``algo.ancillary``, DSAGE)."""
-    try:
-        return bool(run_cfg["algo"]["ancillary"])  # type: ignore[index]
-    except (KeyError, TypeError):
-        return False
 
 
 def _add_border(region):

@@ -43,7 +43,7 @@ from typing import Any
 import numpy as np
 
 from nca_qd.errors import NcaQdError
-from nca_qd.interfaces import EvalBatch, ScoringContext
+from nca_qd.interfaces import EvalBatch, ScoringContext, wants_ancillary
 from nca_qd.io import array_to_rows
 from nca_qd.scoring.backend import JobFailed, make_backend, map_jobs
 from nca_qd.scoring.memo import MEMO_FILE, EvalMemo, first_of_each, layout_key
@@ -158,6 +158,7 @@ class _Work:
     predicted: np.ndarray = field(default_factory=lambda: np.zeros(0))  # screened x scale
     run_exact: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     exact: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    visits: np.ndarray | None = None  # [b, H, W] tile usage of the exact runs (ancillary only)
     n_simulated: int = 0  # distinct layouts given exact runs now
 
 
@@ -197,6 +198,11 @@ class MapfScorer:
         }
         if self.cfg.planner:  # (absent when unset: memos of runs with the defaults stay valid)
             settings["planner"] = self.cfg.planner
+        # DSAGE's ancillary target: the exact runs' tile usage (mean robots per step on each
+        # tile), remembered with their throughput.
+        self.ancillary = wants_ancillary(run_cfg)
+        if self.ancillary:
+            settings["tile_usage"] = True
         self.fingerprint = json.dumps(settings, sort_keys=True, default=str)
         self.memo: EvalMemo | None = EvalMemo(self.fingerprint) if self.cfg.memo else None
         log.info(
@@ -241,6 +247,11 @@ class MapfScorer:
 
     def exact(self, rows: list[list[str]], seeds: list[int]) -> np.ndarray:
         """Exact RHCR throughput per layout and seed ``[n, len(seeds)]`` (NaN where a run failed)."""
+        return self._exact_runs(rows, seeds)[0]
+
+    def _exact_runs(self, rows: list[list[str]], seeds: list[int]) -> tuple[np.ndarray, np.ndarray | None]:
+        """:meth:`exact`, and with the ancillary target each layout's tile usage ``[n, H, W]``
+        (visits / T, averaged over its runs; NaN where a run failed)."""
         jobs = [
             (
                 r,
@@ -249,21 +260,32 @@ class MapfScorer:
                 self.T,
                 s,
                 self.cfg.exact_time_limit_s,
-                False,
+                self.ancillary,
                 self.cfg.planner,
             )
             for r in rows
             for s in seeds
         ]
         out = map_jobs(self.backend, rhcr_task, jobs)
-        tp = np.array(
-            [o.throughput if isinstance(o, ExactOutcome) and o.error is None else np.nan for o in out]
-        ).reshape(len(rows), len(seeds))
+        good = [isinstance(o, ExactOutcome) and o.error is None for o in out]
+        tp = np.array([o.throughput if ok else np.nan for o, ok in zip(out, good)]).reshape(
+            len(rows), len(seeds)
+        )
         for o in out:
             err = o.error if isinstance(o, (ExactOutcome, JobFailed)) else None
             if err:
                 log.warning("exact run failed: %s", err)
-        return tp
+        visits = None
+        if self.ancillary and rows:
+            shape = (len(rows[0]), len(rows[0][0]))
+            per_run = np.stack(
+                [
+                    np.asarray(o.tile_visits, np.float64) / self.T if ok else np.full(shape, np.nan)
+                    for o, ok in zip(out, good)
+                ]
+            )
+            visits = per_run.reshape(len(rows), len(seeds), *shape).mean(axis=1)
+        return tp, visits
 
     def _distinct(self, keys: list[bytes]) -> tuple[np.ndarray, np.ndarray]:
         """``(first, inverse)`` of :func:`first_of_each`; without a memo every layout is its
@@ -292,15 +314,17 @@ class MapfScorer:
 
     def _exact_batch(
         self, rows: list[list[str]], keys: list[bytes], seeds: list[int], iteration: int
-    ) -> tuple[np.ndarray, int]:
+    ) -> tuple[np.ndarray, int, np.ndarray | None]:
         """Mean exact throughput per layout ``[n]``: one set of runs per distinct layout,
-        remembered for the rest of the search. Also returns how many layouts were simulated."""
+        remembered for the rest of the search. Also returns how many layouts were simulated and,
+        with the ancillary target, their tile usage ``[n, H, W]``."""
         first, inverse = self._distinct(keys)
-        tp = self.exact([rows[j] for j in first], seeds)
+        todo = [rows[j] for j in first]
+        tp, visits = self._exact_runs(todo, seeds) if self.ancillary else (self.exact(todo, seeds), None)
         if self.memo is not None:
-            for j, runs in zip(first, tp):
-                self.memo.put_exact(keys[j], runs, iteration)
-        return tp.mean(axis=1)[inverse], len(first)
+            for i, (j, runs) in enumerate(zip(first, tp)):
+                self.memo.put_exact(keys[j], runs, iteration, None if visits is None else visits[i])
+        return tp.mean(axis=1)[inverse], len(first), None if visits is None else visits[inverse]
 
     def _to_screen(self, valid: np.ndarray, elite: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Which valid layouts the screen runs on: all of them, or (by default) those whose
@@ -368,10 +392,15 @@ class MapfScorer:
         w.measures = np.asarray(self.domain.measures(w.fixed), dtype=np.float32)
         w.elite = np.asarray(context.result_elite(w.measures)) if context is not None else np.full(b, -np.inf)
         w.known = np.full(b, np.nan)
+        if self.ancillary:
+            w.visits = np.full(w.fixed.shape, np.nan)
         if self.memo is not None:
             for i in np.flatnonzero(w.ok):
                 runs = self.memo.exact(w.keys[i])
                 w.known[i] = np.nan if runs is None else runs.mean()
+                seen = self.memo.visits(w.keys[i]) if self.ancillary and runs is not None else None
+                if seen is not None and w.visits is not None:
+                    w.visits[i] = seen
         w.fresh = w.ok & np.isnan(w.known)
 
     def _stage_screen(self, w: _Work) -> None:
@@ -400,9 +429,11 @@ class MapfScorer:
         w.exact = w.known.copy()
         chosen = np.flatnonzero(w.run_exact)
         if chosen.size:
-            w.exact[chosen], w.n_simulated = self._exact_batch(
+            w.exact[chosen], w.n_simulated, visits = self._exact_batch(
                 [w.rows[i] for i in chosen], [w.keys[i] for i in chosen], w.seeds, w.iteration
             )
+            if w.visits is not None and visits is not None:
+                w.visits[chosen] = visits
         w.seconds["exact_seconds"] = time.perf_counter() - t
 
     def _stage_assemble(self, w: _Work) -> EvalBatch:
@@ -440,6 +471,8 @@ class MapfScorer:
                 "screened": w.screened,
                 "exact": w.exact,
                 "repair_status": [r.status for r in w.repaired],
+                # tile usage over the generated region (NaN: no exact run of that layout)
+                **({"ancillary": self.domain.layout.region(w.visits)} if w.visits is not None else {}),
             },
         )
 

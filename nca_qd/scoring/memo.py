@@ -70,6 +70,7 @@ class EvalMemo:
         self.fingerprint = fingerprint
         self._repairs: dict[bytes, tuple[RepairOutcome, int]] = {}
         self._exact: dict[bytes, tuple[np.ndarray, int]] = {}
+        self._visits: dict[bytes, np.ndarray] = {}  # tile usage of the exact runs, if recorded
 
     def __len__(self) -> int:
         return len(self._repairs) + len(self._exact)
@@ -84,14 +85,22 @@ class EvalMemo:
         hit = self._exact.get(key)
         return None if hit is None else hit[0]
 
+    def visits(self, key: bytes) -> np.ndarray | None:
+        """The mean tile usage of a repaired layout's exact runs, if they recorded it."""
+        return self._visits.get(key)
+
     def put_repair(self, key: bytes, rep: RepairOutcome, iteration: int) -> None:
         if rep.status != "error":  # an error (a crash, a dead worker) may not recur
             self._repairs.setdefault(key, (rep, int(iteration)))
 
-    def put_exact(self, key: bytes, throughputs: np.ndarray, iteration: int) -> None:
+    def put_exact(
+        self, key: bytes, throughputs: np.ndarray, iteration: int, visits: np.ndarray | None = None
+    ) -> None:
         tp = np.asarray(throughputs, dtype=np.float64)
         if np.isfinite(tp).all():  # a failed run is not a result
             self._exact.setdefault(key, (tp, int(iteration)))
+            if visits is not None:
+                self._visits.setdefault(key, np.asarray(visits, np.float16))
 
     # --- on disk -------------------------------------------------------------------------
     def to_arrays(self) -> dict[str, np.ndarray]:
@@ -108,7 +117,17 @@ class EvalMemo:
                 layouts[i] = r.layout
         exact = [(k, tp, it) for k, (tp, it) in self._exact.items()]
         n_runs = len(exact[0][1]) if exact else 0
+        visits = {}
+        if self._visits:  # only runs that record tile usage (DSAGE's ancillary target)
+            vshape = next(iter(self._visits.values())).shape
+            vis = np.full((len(exact), *vshape), np.nan, np.float16)
+            for i, (k, _, _) in enumerate(exact):
+                v = self._visits.get(k)
+                if v is not None and v.shape == vshape:
+                    vis[i] = v
+            visits = {"exact_visits": vis}
         return {
+            **visits,
             "fingerprint": np.asarray(self.fingerprint),
             "repair_keys": _key_array([k for k, _, _ in reps]),
             "repair_layouts": layouts,
@@ -157,7 +176,10 @@ class EvalMemo:
             it = int(arrays["exact_iteration"][i])
             if keep(it):
                 tp = np.asarray(arrays["exact_throughput"][i])
-                memo._exact[np.asarray(key, np.uint8).tobytes()] = (tp, it)
+                k = np.asarray(key, np.uint8).tobytes()
+                memo._exact[k] = (tp, it)
+                if "exact_visits" in arrays and np.isfinite(arrays["exact_visits"][i]).all():
+                    memo._visits[k] = np.asarray(arrays["exact_visits"][i], np.float16)
         return memo
 
     @classmethod

@@ -153,15 +153,20 @@ class Surrogate:
         return values[:, 0], values[:, 1:]
 
     def loss(self, params, layouts, targets, ancillary, weights) -> jax.Array:
-        """DSAGE's loss: mean of the per-output MSEs (scaled targets) + weight x ancillary MSE."""
+        """DSAGE's loss: mean of the per-output MSEs (scaled targets) + weight x ancillary MSE
+        (over the rows whose map is known: no NaN)."""
         scaled, anc = self._forward(params, layouts)
         t = (targets - self.lows) / self.span
         w = weights / jnp.maximum(jnp.sum(weights), 1.0)
         main = jnp.sum(w * jnp.mean((scaled - t) ** 2, axis=1))
         if not self.cfg.use_ancillary:
             return main
-        anc_err = jnp.mean((anc - ancillary) ** 2, axis=(1, 2))
-        return main + self.cfg.ancillary_weight * jnp.sum(w * anc_err)
+        # a row without a map (a warehouse layout that got no exact run) trains the rest only
+        known = jnp.isfinite(ancillary)
+        has_map = jnp.all(known, axis=(1, 2)) * weights
+        anc_err = jnp.mean((anc - jnp.where(known, ancillary, 0.0)) ** 2, axis=(1, 2))
+        anc_loss = jnp.sum(has_map * anc_err) / jnp.maximum(jnp.sum(has_map), 1.0)
+        return main + self.cfg.ancillary_weight * anc_loss
 
     # --- training --------------------------------------------------------------------------
     def _step(self, params, opt_state, layouts, targets, ancillary, valid):
