@@ -37,6 +37,8 @@ Every name of the former single module ``nca_qd/evaluation.py`` is importable fr
 
 from __future__ import annotations
 
+from nca_qd.errors import NcaQdError
+
 import logging
 import time
 from collections.abc import Mapping
@@ -107,6 +109,11 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
     ecfg = validated(ecfg)
     run_dir = Path(ecfg["run_dir"])
     cfg, archive = load_run(run_dir, domain_override)
+    if cfg.algo.name == "dsage":
+        raise NcaQdError(
+            f"{run_dir} is a DSAGE run: its layouts exist at the training size only, and "
+            "experiments.evaluate does not evaluate them yet"
+        )
     dcfg = OmegaConf.to_container(cfg.domain, resolve=True)
     name = dcfg["name"]
     out = Path(ecfg["out"]) if ecfg.get("out") else run_dir / "evaluation"
