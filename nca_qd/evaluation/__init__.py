@@ -37,8 +37,6 @@ Every name of the former single module ``nca_qd/evaluation.py`` is importable fr
 
 from __future__ import annotations
 
-from nca_qd.errors import NcaQdError
-
 import logging
 import time
 from collections.abc import Mapping
@@ -46,6 +44,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from nca_qd.errors import NcaQdError
 from nca_qd.evaluation.agents import agent_range, check_agents, positive_ints, scaled_agents
 from nca_qd.evaluation.layouts import (
     SUPPORTED,
