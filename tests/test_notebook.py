@@ -9,7 +9,22 @@ NOTEBOOK = Path(__file__).resolve().parents[1] / "notebooks" / "explore_archive.
 
 
 def test_explore_archive_notebook_executes(full_run, tmp_path, monkeypatch):
-    run_dir = full_run[0]  # the session's short maze run (conftest), only read
+    _execute(full_run[0], tmp_path, monkeypatch, 4)  # the session's short maze run (conftest), only read
+
+
+def test_the_notebook_explores_a_dsage_run(tmp_path, monkeypatch):
+    """A DSAGE archive holds layouts, not generators: drawn at the training size only."""
+    from test_dsage import TINY_DSAGE
+
+    from experiments.cli import compose_config
+    from nca_qd.experiment import Experiment
+
+    run_dir = tmp_path / "dsage"
+    Experiment(compose_config("run", [*TINY_DSAGE, "qd.n_evals=40"]), run_dir).run()
+    _execute(run_dir, tmp_path, monkeypatch, 3)  # the archive, elites at S, one more at S
+
+
+def _execute(run_dir, tmp_path, monkeypatch, n_images):
     monkeypatch.setenv("NCA_QD_RUN_DIR", str(run_dir))
     monkeypatch.setenv("JAX_PLATFORMS", "cpu")
     nb = nbformat.read(NOTEBOOK, as_version=4)
@@ -23,7 +38,7 @@ def test_explore_archive_notebook_executes(full_run, tmp_path, monkeypatch):
         for o in c.get("outputs", [])
         if "image/png" in o.get("data", {})
     ]
-    assert len(images) >= 4, "the notebook should draw the archive and the elites"
+    assert len(images) >= n_images, "the notebook should draw the archive and the elites"
     errors = [
         o
         for c in nb.cells
