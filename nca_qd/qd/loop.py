@@ -88,12 +88,9 @@ class QDLoop:
         chex.assert_shape([objective, result_objective, valid, result_valid], (self.batch_size,))
         chex.assert_shape(measures, (self.batch_size, len(self.spec.cells)))
         key, k_tell = jax.random.split(state.key)
-        f_opt = jnp.where(valid, objective, -jnp.inf).astype(jnp.float32)
-        f_res = jnp.where(valid & result_valid, result_objective, -jnp.inf).astype(jnp.float32)
-        measures = measures.astype(jnp.float32)
-        cells = grid_cell_indices(measures, self.spec.cells, self.spec.ranges)
-        opt_archive, info = state.opt_archive.add_with_info(solutions, measures, f_opt, cells)
-        res_archive, _ = state.res_archive.add_with_info(solutions, measures, f_res, cells)
+        opt_archive, res_archive, f_opt, info, metrics = add_to_archives(
+            state, solutions, objective, result_objective, measures, valid, result_valid, self.spec
+        )
         emitter_state = self.emitter.tell(state.emitter_state, opt_archive, solutions, f_opt, info, k_tell)
         new = state.replace(
             opt_archive=opt_archive,
@@ -103,26 +100,11 @@ class QDLoop:
             iteration=state.iteration + 1,
             evaluations=state.evaluations + self.batch_size,
         )
-        offset = self.spec.qd_offset
-        res, opt = archive_stats(res_archive, offset), archive_stats(opt_archive, offset)
-        metrics = {
-            **res,
-            **{f"opt_{k}": v for k, v in opt.items()},
-            "batch_best": jnp.max(f_res),
-            "batch_added": jnp.sum(info.status > 0),
-        }
         return new, metrics
 
     def context(self, state: QDState) -> ScoringContext:
         """What a scorer may ask of the search: the result archive's elite in a cell."""
-        spec = self.spec
-        fitness = state.res_archive.fitnesses[:, 0]
-
-        def result_elite(measures: np.ndarray) -> np.ndarray:
-            cells = grid_cell_indices(jnp.asarray(measures, jnp.float32), spec.cells, spec.ranges)
-            return np.asarray(fitness[cells], dtype=np.float64)
-
-        return ScoringContext(result_elite=result_elite, iteration=int(state.iteration) + 1)
+        return scoring_context(state, self.spec)
 
     def step(self, state: QDState) -> tuple[QDState, dict[str, float], EvalBatch]:
         """One iteration; returns the new state, scalar metrics and the batch's evaluation."""
@@ -138,14 +120,62 @@ class QDLoop:
             jnp.asarray(ev.valid),
             jnp.asarray(ev.result_valid),
         )
-        out = {k: float(v) for k, v in jax.device_get(metrics).items()}
-        out.update(
-            {k: v if isinstance(v, int) else float(v) for k, v in dict(ev.extras.get("metrics", {})).items()}
-        )
-        out["iteration"] = int(state.iteration)
-        out["evaluations"] = int(state.evaluations)
-        out["step_seconds"] = time.perf_counter() - t0
-        return state, out, ev
+        return state, step_metrics(metrics, ev, state, t0), ev
+
+
+def step_metrics(
+    metrics: Mapping[str, Any],
+    ev: EvalBatch,
+    state: QDState,
+    t0: float,
+    extra: Mapping[str, Any] | None = None,
+) -> dict[str, float]:
+    """One iteration's row of ``metrics.csv``: the archives' metrics, the algorithm's
+    ``extra`` and the scorer's own figures as plain numbers, the counters and the seconds since
+    ``t0``."""
+    out: dict[str, Any] = {k: float(v) for k, v in jax.device_get(dict(metrics)).items()}
+    for k, v in [*dict(extra or {}).items(), *dict(ev.extras.get("metrics", {})).items()]:
+        out[k] = v if isinstance(v, int) else float(v)
+    out["iteration"] = int(state.iteration)
+    out["evaluations"] = int(state.evaluations)
+    out["step_seconds"] = time.perf_counter() - t0
+    return out
+
+
+def add_to_archives(
+    state: QDState, solutions, objective, result_objective, measures, valid, result_valid, spec
+):
+    """Insert a scored batch into both archives (jittable): f_opt where valid, f_res where also
+    ``result_valid``, -inf (never inserted) elsewhere. Returns the new optimisation and result
+    archives, f_opt, the optimisation archive's :class:`AddInfo` and the scalar metrics (both
+    archives' QD-score, coverage, best objective and size, the batch's best f_res and how
+    many it added to the optimisation archive)."""
+    f_opt = jnp.where(valid, objective, -jnp.inf).astype(jnp.float32)
+    f_res = jnp.where(valid & result_valid, result_objective, -jnp.inf).astype(jnp.float32)
+    measures = measures.astype(jnp.float32)
+    cells = grid_cell_indices(measures, spec.cells, spec.ranges)
+    opt_archive, info = state.opt_archive.add_with_info(solutions, measures, f_opt, cells)
+    res_archive, _ = state.res_archive.add_with_info(solutions, measures, f_res, cells)
+    res, opt = archive_stats(res_archive, spec.qd_offset), archive_stats(opt_archive, spec.qd_offset)
+    metrics = {
+        **res,
+        **{f"opt_{k}": v for k, v in opt.items()},
+        "batch_best": jnp.max(f_res),
+        "batch_added": jnp.sum(info.status > 0),
+    }
+    return opt_archive, res_archive, f_opt, info, metrics
+
+
+def scoring_context(state: QDState, spec: ArchiveSpec) -> ScoringContext:
+    """The :class:`ScoringContext` of a search state: its result archive's elite objective in
+    the cell of any measures, and the iteration about to be scored."""
+    fitness = state.res_archive.fitnesses[:, 0]
+
+    def result_elite(measures: np.ndarray) -> np.ndarray:
+        cells = grid_cell_indices(jnp.asarray(measures, jnp.float32), spec.cells, spec.ranges)
+        return np.asarray(fitness[cells], dtype=np.float64)
+
+    return ScoringContext(result_elite=result_elite, iteration=int(state.iteration) + 1)
 
 
 def make_emitter(algo_cfg: Any, qd_cfg: Any, dim: int):

@@ -29,6 +29,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Any
 
 import chex
@@ -39,10 +40,11 @@ import numpy as np
 
 from nca_qd.errors import NcaQdError
 from nca_qd.interfaces import EvalBatch, ScoringContext
-from nca_qd.qd.archive import ThresholdRepertoire, archive_stats, grid_cell_indices
+from nca_qd.io import save_npz
+from nca_qd.qd.archive import ThresholdRepertoire
 from nca_qd.qd.dsage.surrogate import Surrogate, SurrogateConfig
 from nca_qd.qd.dsage.tiles import downsample, make_inner_loop, random_layouts
-from nca_qd.qd.loop import ArchiveSpec, QDState
+from nca_qd.qd.loop import ArchiveSpec, QDState, add_to_archives, scoring_context, step_metrics
 
 DSAGE_METRICS = (
     "n_real",
@@ -159,16 +161,10 @@ class DSAGELoop:
 
     def save_state(self, run_dir) -> None:
         """Write the training data (``dsage_data.npz``, atomically)."""
-        from pathlib import Path
-
-        from nca_qd.io import save_npz
-
         save_npz(Path(run_dir) / DATA_FILE, self.data)
 
     def restore_state(self, run_dir, state: QDState) -> None:
         """Read the training data back, cut to the rows the checkpoint ``state`` counts."""
-        from pathlib import Path
-
         path = Path(run_dir) / DATA_FILE
         count = int(state.emitter_state.count)
         if count == 0:
@@ -190,14 +186,7 @@ class DSAGELoop:
         return int(state.evaluations) >= self.n_evals
 
     def context(self, state: QDState) -> ScoringContext:
-        spec = self.spec
-        fitness = state.res_archive.fitnesses[:, 0]
-
-        def result_elite(measures: np.ndarray) -> np.ndarray:
-            cells = grid_cell_indices(jnp.asarray(measures, jnp.float32), spec.cells, spec.ranges)
-            return np.asarray(fitness[cells], dtype=np.float64)
-
-        return ScoringContext(result_elite=result_elite, iteration=int(state.iteration) + 1)
+        return scoring_context(state, self.spec)
 
     # --- one outer iteration ---------------------------------------------------------------
     def _update_impl(self, state: QDState, sols, f_opt, f_res, measures, valid, result_valid, n_real):
@@ -205,15 +194,11 @@ class DSAGELoop:
         chex.assert_shape(sols, (b, self.dim))
         chex.assert_shape([f_opt, f_res, valid, result_valid], (b,))
         real = jnp.arange(b) < n_real
-        valid, result_valid = valid & real, result_valid & real
-        f_opt = jnp.where(valid, f_opt, -jnp.inf).astype(jnp.float32)
-        f_res = jnp.where(valid & result_valid, f_res, -jnp.inf).astype(jnp.float32)
-        measures = measures.astype(jnp.float32)
-        cells = grid_cell_indices(measures, self.spec.cells, self.spec.ranges)
-        opt_archive, _ = state.opt_archive.add_with_info(sols, measures, f_opt, cells)
-        res_archive, info = state.res_archive.add_with_info(sols, measures, f_res, cells)
+        opt_archive, res_archive, _, _, metrics = add_to_archives(
+            state, sols, f_opt, f_res, measures, valid & real, result_valid & real, self.spec
+        )
         data = state.emitter_state
-        data = data.replace(count=data.count + jnp.sum(valid).astype(jnp.int32))
+        data = data.replace(count=data.count + jnp.sum(valid & real).astype(jnp.int32))
         new = state.replace(
             opt_archive=opt_archive,
             res_archive=res_archive,
@@ -221,14 +206,6 @@ class DSAGELoop:
             iteration=state.iteration + 1,
             evaluations=state.evaluations + n_real,
         )
-        offset = self.spec.qd_offset
-        res, opt = archive_stats(res_archive, offset), archive_stats(opt_archive, offset)
-        metrics = {
-            **res,
-            **{f"opt_{k}": v for k, v in opt.items()},
-            "batch_best": jnp.max(f_res),
-            "batch_added": jnp.sum(info.status > 0),
-        }
         return new, metrics
 
     def step(self, state: QDState) -> tuple[QDState, dict[str, float], EvalBatch]:
@@ -290,15 +267,7 @@ class DSAGELoop:
                 )
         self._append_data(sols, ev, n_real)
         state, metrics = self._update(state, *self._pad(sols, ev, n_real), jnp.asarray(n_real, jnp.int32))
-        out = {k: float(v) for k, v in jax.device_get(metrics).items()}
-        out.update({k: v if isinstance(v, int) else float(v) for k, v in extra.items()})
-        out.update(
-            {k: v if isinstance(v, int) else float(v) for k, v in dict(ev.extras.get("metrics", {})).items()}
-        )
-        out["iteration"] = int(state.iteration)
-        out["evaluations"] = int(state.evaluations)
-        out["step_seconds"] = time.perf_counter() - t0
-        return state, out, ev
+        return state, step_metrics(metrics, ev, state, t0, extra), ev
 
     def _evaluate(self, sols: np.ndarray, key: jax.Array, state: QDState) -> EvalBatch:
         """The real scorer on ``sols``. A jitted scorer gets the batch padded with copies of its
