@@ -175,7 +175,8 @@ def plot_curves(path: Path, summaries: Sequence[GroupSummary], points: int = 200
                 if len(s.runs) > 1:
                     n = np.sum(np.isfinite(v), axis=0)
                     half = np.asarray([_t95(int(k)) if k > 1 else np.nan for k in n]) * se
-                    ax.fill_between(grid, mean - half, mean + half, alpha=0.2, color=line.get_color())
+                    low = np.maximum(mean - half, 0.0)  # both metrics are non-negative
+                    ax.fill_between(grid, low, mean + half, alpha=0.2, color=line.get_color())
         for ax, metric in zip(row, METRICS):
             ax.set_title(f"{domain}: {metric.replace('_', '-')}", fontsize=9)
             ax.set_xlabel("evaluations")
