@@ -389,6 +389,7 @@ def tiny_run(tmp_path_factory):
         ("missing", "does not exist"),
         ("not_a_run", "not a run directory"),
         ("maze", "maze run: experiments.evaluate supports only"),
+        ("dsage", "is a DSAGE run: its layouts exist at the training size only"),
         ("mismatch", "domain=manufacturing given, but"),
         ("empty", "the result archive is empty"),
         ("no_run_dir", "give run_dir"),
@@ -409,6 +410,8 @@ def test_bad_input_is_one_line_and_exit_2(case, expect, tmp_path, tiny_run, monk
         argv[0] = f"run_dir={tmp_path}"
     elif case == "maze":
         argv[0] = f"run_dir={make_run(tmp_path / 'maze', ['domain=maze'])}"
+    elif case == "dsage":
+        argv[0] = f"run_dir={make_run(tmp_path / 'dsage', [*TINY_RUN, 'algo=dsage'])}"
     elif case == "mismatch":
         argv.append("domain=manufacturing")
     elif case == "empty":

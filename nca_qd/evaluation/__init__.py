@@ -44,7 +44,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from nca_qd.errors import NcaQdError
 from nca_qd.evaluation.agents import agent_range, check_agents, positive_ints, scaled_agents
 from nca_qd.evaluation.layouts import (
     SUPPORTED,
@@ -108,11 +107,6 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
     ecfg = validated(ecfg)
     run_dir = Path(ecfg["run_dir"])
     cfg, archive = load_run(run_dir, domain_override)
-    if cfg.algo.name == "dsage":
-        raise NcaQdError(
-            f"{run_dir} is a DSAGE run: its layouts exist at the training size only, and "
-            "experiments.evaluate does not evaluate them yet"
-        )
     dcfg = OmegaConf.to_container(cfg.domain, resolve=True)
     name = dcfg["name"]
     out = Path(ecfg["out"]) if ecfg.get("out") else run_dir / "evaluation"

@@ -58,6 +58,11 @@ def load_run(run_dir: str | Path, domain: str | None = None) -> tuple[Any, dict[
         )
     if domain is not None and str(domain) != name:
         raise NcaQdError(f"domain={domain} given, but {path} is a {name} run")
+    if OmegaConf.select(cfg, "algo.name") == "dsage":
+        raise NcaQdError(
+            f"{path} is a DSAGE run: its layouts exist at the training size only, and "
+            "experiments.evaluate does not evaluate them yet"
+        )
     archive = load_archive(path, "result")
     if not np.isfinite(np.asarray(archive["objective"])).any():
         raise NcaQdError(f"{path}: the result archive is empty (no generator to evaluate)")
