@@ -21,9 +21,11 @@ from __future__ import annotations
 import logging
 import multiprocessing
 import os
+import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
+from multiprocessing.connection import wait as wait_for_sentinels
 from dataclasses import dataclass
 from typing import Any
 
@@ -44,6 +46,19 @@ def available_cpus() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # pragma: no cover - not Linux
         return os.cpu_count() or 1
+
+
+def _still_running(procs: list, timeout: float) -> list:
+    """The processes of ``procs`` whose exit sentinel is not ready after ``timeout`` seconds."""
+    pending = {proc.sentinel: proc for proc in procs}
+    deadline = time.monotonic() + timeout
+    while pending:
+        remaining = deadline - time.monotonic()
+        if remaining <= 0:
+            break
+        for sentinel in wait_for_sentinels(list(pending), remaining):
+            pending.pop(sentinel)
+    return list(pending.values())
 
 
 class LocalBackend:
@@ -124,14 +139,15 @@ class LocalBackend:
         workers = list(getattr(pool, "_processes", {}).values())  # no public API before 3.14
         pool.shutdown(wait=False, cancel_futures=True)
         for proc in workers:
-            if proc.is_alive():
+            if proc.exitcode is None:
                 proc.terminate()
-        for proc in workers:
-            proc.join(timeout=5)
-        for proc in workers:  # one that outlived SIGTERM (seen on a loaded 2-core CI machine)
-            if proc.is_alive():
-                proc.kill()
-                proc.join(timeout=5)
+        # Wait on the exit sentinels, not proc.join(): the pool's own manager thread reaps
+        # these workers too, and two threads in waitpid() on one pid leave the loser unaware
+        # that its process ended (seen on a loaded 2-core CI machine).
+        left = _still_running(workers, timeout=5.0)
+        for proc in left:  # one that outlived SIGTERM
+            proc.kill()
+        _still_running(left, timeout=5.0)
 
     def describe(self) -> str:
         return "inline" if self.workers == 0 else f"local process pool ({self.workers} workers)"
