@@ -10,7 +10,8 @@
 
 The best generator(s) of the run's result archive generate at S (C=50) and S_eval (C_eval=200)
 and at the ``sizes.shapes``; each layout is repaired once; the human-designed layouts and the
-tiling baseline stand beside them. Exact RHCR runs (``exact.*``, in parallel on the ``eval``
+tiling baseline stand beside them (a DSAGE run's archive holds tile layouts of size S: those
+are evaluated at S only, beside the human layout). Exact RHCR runs (``exact.*``, in parallel on the ``eval``
 backend) and the JAX screening simulator (the rest, labelled ``screen``) give success rate and
 throughput (mean ± standard error, 95 % intervals). Writes under ``out`` (default
 ``<run_dir>/evaluation/``):

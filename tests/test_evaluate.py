@@ -69,14 +69,20 @@ def make_run(run_dir: Path, overrides=TINY_RUN, elites=(3, 7), empty=False) -> P
     from nca_qd.pipeline import make_generator
 
     cfg = compose_config("run", list(overrides))
-    n_params = make_generator(make_domain(cfg.domain)).n_params if cfg.domain.name != "maze" else 10
+    direct = cfg.algo.name == "dsage"  # the archive holds tile layouts, not NCA parameters
+    domain = make_domain(cfg.domain) if cfg.domain.name != "maze" else None
+    n_params = make_generator(domain, cfg.algo.name).n_params if domain is not None else 10
     cells = 12
     rng = np.random.default_rng(0)
     genotypes = np.zeros((cells, n_params), np.float32)
     objective = np.full(cells, -np.inf, np.float32)
     if not empty:
         for rank, c in enumerate(elites):
-            genotypes[c] = 0.3 * rng.standard_normal(n_params)
+            genotypes[c] = (
+                (rng.random(n_params) < 0.15).astype(np.float32)  # 0 = empty, 1 = shelf
+                if direct
+                else 0.3 * rng.standard_normal(n_params)
+            )
             objective[c] = 5.0 - rank
     run_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_text(run_dir / "config.yaml", OmegaConf.to_yaml(cfg))
@@ -268,6 +274,35 @@ def test_layouts_are_saved_and_tiling_is_repaired(evaluated):
         assert check(lay, make_rules("warehouse_even", lay.shape, n_shelves=n_s)) is None, key
 
 
+def test_a_dsage_run_is_evaluated_at_s_only(tmp_path, maps):
+    """A DSAGE archive holds tile layouts of size S: the best is repaired and simulated at S
+    beside the human layout; no S_eval, tiling or other size (the paper's "N/A")."""
+    from nca_qd.layouts import warehouse as wh
+    from nca_qd.repair import make_rules
+    from nca_qd.repair.validator import check
+
+    run_dir = make_run(tmp_path / "dsage", [*TINY_RUN, "algo=dsage"])
+    out = tmp_path / "evaluation"
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert evaluate_cli.main([f"run_dir={run_dir}", f"out={out}", *FAST, "sweep.train.agents=[]"]) == 0
+    summary = read(out / "summary.csv")
+    assert {(r["layout"], r["kind"], r["size"]) for r in summary} == {
+        ("DSAGE (cell 3)", "dsage", "9x14"),
+        ("human", "human", "9x14"),
+    }
+    assert {r["simulator"] for r in summary} == {"rhcr", "screen"}
+    runs = read(out / "runs.csv")
+    assert {r["size"] for r in runs} == {"9x14"}
+    assert sum(r["simulator"] == "rhcr" and r["kind"] == "dsage" for r in runs) == 2  # exact.train
+    # the unrepaired layout is the archive's elite itself (no generation step), with the frame
+    elite = np.load(run_dir / "archive_result.npz")["genotypes"][3].reshape(9, 10)
+    unrepaired = load_map(out / "layouts" / "dsage_c3_9x14_unrepaired.json", wh.TILES).to_array(wh.TILES)
+    assert np.array_equal(unrepaired[:, 2:-2], elite.astype(np.int32))
+    repaired = load_map(out / "layouts" / "dsage_c3_9x14.json", wh.TILES).to_array(wh.TILES)
+    assert check(repaired, make_rules("warehouse_even", repaired.shape, n_shelves=12)) is None
+    assert not list(out.glob("*13x18*")) and not list((out / "layouts").glob("*13x18*"))
+
+
 def test_tiling_keeps_the_frame_and_repeats_the_pattern():
     from nca_qd.layouts import warehouse as wh
 
@@ -389,7 +424,7 @@ def tiny_run(tmp_path_factory):
         ("missing", "does not exist"),
         ("not_a_run", "not a run directory"),
         ("maze", "maze run: experiments.evaluate supports only"),
-        ("dsage", "is a DSAGE run: its layouts exist at the training size only"),
+        ("dsage", "is a DSAGE run: its layouts exist at the training size only, so select.by=s_eval"),
         ("mismatch", "domain=manufacturing given, but"),
         ("empty", "the result archive is empty"),
         ("no_run_dir", "give run_dir"),
@@ -412,6 +447,7 @@ def test_bad_input_is_one_line_and_exit_2(case, expect, tmp_path, tiny_run, monk
         argv[0] = f"run_dir={make_run(tmp_path / 'maze', ['domain=maze'])}"
     elif case == "dsage":
         argv[0] = f"run_dir={make_run(tmp_path / 'dsage', [*TINY_RUN, 'algo=dsage'])}"
+        argv.append("select.by=s_eval")
     elif case == "mismatch":
         argv.append("domain=manufacturing")
     elif case == "empty":

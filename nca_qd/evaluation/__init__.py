@@ -44,6 +44,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from nca_qd.errors import NcaQdError
 from nca_qd.evaluation.agents import agent_range, check_agents, positive_ints, scaled_agents
 from nca_qd.evaluation.layouts import (
     SUPPORTED,
@@ -102,6 +103,7 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
 
     from nca_qd.domains import make_domain
     from nca_qd.io import atomic_write_text
+    from nca_qd.pipeline import make_generator
     from nca_qd.scoring.backend import make_backend
 
     ecfg = validated(ecfg)
@@ -109,12 +111,20 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
     cfg, archive = load_run(run_dir, domain_override)
     dcfg = OmegaConf.to_container(cfg.domain, resolve=True)
     name = dcfg["name"]
+    algo = OmegaConf.select(cfg, "algo.name")
     out = Path(ecfg["out"]) if ecfg.get("out") else run_dir / "evaluation"
     by_s_eval = ecfg["select"]["by"] == "s_eval"
-    cells_idx = pick_cells(archive["objective"], ecfg["select"]["pool"] if by_s_eval else ecfg["elites"])
     domain = make_domain(dcfg)
+    # A direct search's layouts (DSAGE) exist at S only: no S_eval, as in the paper's table 1.
+    scales = getattr(make_generator(domain, algo), "scalable", True)
+    if by_s_eval and not scales:
+        raise NcaQdError(
+            f"{run_dir} is a {str(algo).upper()} run: its layouts exist at the training size only, "
+            "so select.by=s_eval does not apply (use select.by=s)"
+        )
+    cells_idx = pick_cells(archive["objective"], ecfg["select"]["pool"] if by_s_eval else ecfg["elites"])
     tiles = domain.layout_tiles
-    plan = Plan(ecfg, dcfg, name)
+    plan = Plan(ecfg, dcfg, name, scales=scales)
     backend = make_backend(ecfg.get("eval"))  # an unreachable scheduler fails here, early
     selection: Selection | None = None
     try:
@@ -134,7 +144,7 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
             {selection.layouts[int(c)].key: selection.layouts[int(c)] for c in cells_idx} if selection else {}
         )
         layouts = build_layouts(
-            ecfg, dcfg, domain, archive, cells_idx, plan, backend, ready, repair=repair_all
+            ecfg, dcfg, domain, archive, cells_idx, plan, backend, ready, repair=repair_all, algo=algo
         )
         requests = plan.requests(layouts)
         check_agents(layouts, requests, name, tiles)

@@ -58,11 +58,6 @@ def load_run(run_dir: str | Path, domain: str | None = None) -> tuple[Any, dict[
         )
     if domain is not None and str(domain) != name:
         raise NcaQdError(f"domain={domain} given, but {path} is a {name} run")
-    if OmegaConf.select(cfg, "algo.name") == "dsage":
-        raise NcaQdError(
-            f"{path} is a DSAGE run: its layouts exist at the training size only, and "
-            "experiments.evaluate does not evaluate them yet"
-        )
     archive = load_archive(path, "result")
     if not np.isfinite(np.asarray(archive["objective"])).any():
         raise NcaQdError(f"{path}: the result archive is empty (no generator to evaluate)")
@@ -216,17 +211,20 @@ def build_layouts(
     ready: Mapping[str, EvalLayout] | None = None,
     *,
     repair: Repair = repair_all,
+    algo: str | None = None,
 ) -> dict[str, EvalLayout]:
-    """Generate (NCA), load (human) and tile, then repair everything that needs it (with
-    ``repair``). NCA layouts already generated and repaired (``ready``, by key: the S_eval
-    layouts of a selection) are taken as they are."""
+    """Generate (NCA, or a DSAGE run's tile layouts at S), load (human) and tile, then repair
+    everything that needs it (with ``repair``). NCA layouts already generated and repaired
+    (``ready``, by key: the S_eval layouts of a selection) are taken as they are."""
     from nca_qd.pipeline import make_generator
 
     name, tiles = domain.name, domain.layout_tiles
-    generator = make_generator(domain)
+    generator = make_generator(domain, algo)
+    direct = not getattr(generator, "scalable", True)  # DSAGE: the archive holds the layouts
+    prefix, label = ("dsage", "DSAGE") if direct else ("nca", "NCA")
     genotypes = np.asarray(archive["genotypes"][cells_idx])
     layouts: dict[str, EvalLayout] = {}
-    sizes = list(dict.fromkeys([plan.s_train, plan.s_eval, *plan.extra]))
+    sizes = plan.sizes
     c_train, c_eval = int(d["nca_iters"]["train"]), int(d["nca_iters"]["eval"])
     iters_cfg = {
         parse_size(k): positive_ints(v, f"sizes.nca_iters.{k}")[0]
@@ -241,7 +239,7 @@ def build_layouts(
             if which == "eval"
             else iters_cfg.get(shape) or interpolate_iters(shape, plan.s_train, plan.s_eval, c_train, c_eval)
         )
-        keys = [f"nca_c{int(c)}@{size_str(shape)}" for c in cells_idx]
+        keys = [f"{prefix}_c{int(c)}@{size_str(shape)}" for c in cells_idx]
         todo = [i for i, k in enumerate(keys) if k not in (ready or {})]
         made: dict[int, tuple[np.ndarray, float]] = {}
         if todo:
@@ -260,8 +258,8 @@ def build_layouts(
                 lay, sec = made[i]
                 item = EvalLayout(
                     key,
-                    f"NCA (cell {int(c)})",
-                    "nca",
+                    f"{label} (cell {int(c)})",
+                    prefix,
                     size_str(shape),
                     which,
                     None,
@@ -285,8 +283,8 @@ def build_layouts(
     rest = [
         (lay, repair_opts(e, d, plan, parse_size(lay.size))) for lay in layouts.values() if lay.repair is None
     ]
-    if e["baselines"]["tiling"] and plan.s_eval != plan.s_train:
-        best = layouts[f"nca_c{int(cells_idx[0])}@{size_str(plan.s_train)}"]
+    if e["baselines"]["tiling"] and plan.scales and plan.s_eval != plan.s_train:
+        best = layouts[f"{prefix}_c{int(cells_idx[0])}@{size_str(plan.s_train)}"]
         if best.layout is None:
             log.warning("no tiling baseline: the best generator's S layout was not repaired")
         else:

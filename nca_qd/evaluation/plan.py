@@ -70,10 +70,12 @@ def validated(ecfg: Mapping[str, Any]) -> dict[str, Any]:
 
 
 class Plan:
-    """Sizes, agent counts and run counts of every table and curve."""
+    """Sizes, agent counts and run counts of every table and curve. With ``scales=False``
+    (the layouts of a direct search, DSAGE, exist at S only) every size but S is dropped: no
+    S_eval table or curve, no tiling baseline, the more-sizes curve reduced to S."""
 
-    def __init__(self, e: Mapping[str, Any], d: Mapping[str, Any], name: str):
-        self.e, self.d, self.name = e, d, name
+    def __init__(self, e: Mapping[str, Any], d: Mapping[str, Any], name: str, scales: bool = True):
+        self.e, self.d, self.name, self.scales = e, d, name, scales
         self.s_train = full_shape(name, d["size"]["train"])
         self.s_eval = full_shape(name, d["size"]["eval"])
         self.n_train = int(e["agents"]["train"] or d["n_agents"]["train"])
@@ -110,7 +112,14 @@ class Plan:
             s: explicit.get(s) or scaled_agents(s, ref_n, self.s_eval, sz["fractions"], int(sz["round_to"]))
             for s in self.curve
         }
-        self.all_sizes = [size_str(s) for s in dict.fromkeys([self.s_train, self.s_eval, *self.extra])]
+        if not scales:
+            self.extra, self.curve = [], [s for s in self.curve if s == self.s_train]
+            self.curve_agents = {s: n for s, n in self.curve_agents.items() if s in self.curve}
+        # the sizes layouts are generated at
+        self.sizes = list(
+            dict.fromkeys([self.s_train] if not scales else [self.s_train, self.s_eval, *self.extra])
+        )
+        self.all_sizes = [size_str(s) for s in self.sizes]
 
     def which(self, shape: tuple[int, int]) -> str:
         return "train" if shape == self.s_train else "eval" if shape == self.s_eval else "extra"
@@ -137,7 +146,7 @@ class Plan:
                     Request("sweep_train", key, n, e["sweep"]["train"]["runs"], ex["sweep_train"])
                     for n in self.sweep_train
                 ]
-            if shape == self.s_eval:
+            if shape == self.s_eval and self.scales:
                 out.append(Request("main_eval", key, self.n_eval, e["runs"]["eval"], ex["eval"], True))
                 out += [
                     Request("sweep_eval", key, n, e["sweep"]["eval"]["runs"], ex["sweep_eval"])

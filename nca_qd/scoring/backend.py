@@ -25,8 +25,8 @@ import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
-from multiprocessing.connection import wait as wait_for_sentinels
 from dataclasses import dataclass
+from multiprocessing.connection import wait as wait_for_sentinels
 from typing import Any
 
 from nca_qd.errors import NcaQdError
