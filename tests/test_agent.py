@@ -241,6 +241,70 @@ def test_min_interior_levels_are_smaller_mazes_inside_the_fixed_array():
         }
 
 
+def test_large_levels_get_the_sweep_and_small_ones_stay_exact():
+    """levels.solver=auto: exact start/goal up to 32x32 interiors (unchanged training there),
+    the double sweep beyond; a 40x40 batch of DR + NCA levels is solvable, its start and goal
+    free, the goal the farthest tile from the start by an independent BFS."""
+    from collections import deque
+
+    from nca_qd.agent.levels import buffer_init, choose_levels, solver_for
+
+    assert solver_for("auto", (32, 32)) == "exact" and solver_for(None, (16, 16)) == "exact"
+    assert solver_for("auto", (33, 32)) == "sweep" and solver_for("exact", (64, 64)) == "exact"
+    with pytest.raises(ValueError, match="levels.solver"):
+        solver_for("bogus", (16, 16))
+    cfg = OmegaConf.create(
+        {
+            "method": "accel",
+            "density": [0.0, 0.5],
+            "tries": 2,
+            "nca_prob": 0.5,
+            "nca_sigma": [0.2, 1.0],
+            "nca_iters": 20,
+            "replay_prob": 0.5,
+            "edit_prob": 0.5,
+            "max_edits": 5,
+            "min_fill": 100,
+            "temperature": 0.3,
+            "staleness": 0.3,
+        }
+    )
+    levels, _, kind = choose_levels(
+        jax.random.PRNGKey(0), buffer_init(8, (42, 42)), jnp.int32(0), 8, (40, 40), cfg
+    )
+    lay, start, goal = (np.asarray(x) for x in (levels.layout, levels.start, levels.goal))
+    assert set(np.asarray(kind).tolist()) <= {2, 3}
+    for i in range(len(lay)):
+        free = lay[i] == 0
+        s, g = tuple(start[i]), tuple(goal[i])
+        assert free[s] and free[g] and s != g
+        dist = {s: 0}
+        todo = deque([s])
+        while todo:
+            y, x = todo.popleft()
+            for p in ((y + 1, x), (y - 1, x), (y, x + 1), (y, x - 1)):
+                if free[p] and p not in dist:
+                    dist[p] = dist[(y, x)] + 1
+                    todo.append(p)
+        assert g in dist and dist[g] == max(dist.values())  # the goal: the farthest tile from the start
+
+
+def test_heldout_set_with_nca_mazes_at_a_larger_size():
+    from experiments.cli import compose_config
+    from nca_qd.agent.train import heldout_levels, heldout_nca_iters
+
+    cfg = compose_config(
+        "train_agent",
+        ["heldout.interior=[40,40]", "heldout.n_random=2", "heldout.n_nca=3", "heldout.paper_map=null"],
+    )
+    assert heldout_nca_iters(cfg) == 125  # 50 at 16x16 ... 200 at 64x64, linear in the side
+    levels, names = heldout_levels(cfg)
+    assert names == ["random_0", "random_1", "nca_0", "nca_1", "nca_2"]
+    assert levels.layout.shape == (5, 42, 42)
+    nca = np.asarray(levels.layout[2:])
+    assert not np.array_equal(nca[0], nca[1])  # three different generators
+
+
 # --------------------------------------------------------------------------- shipped agent
 
 OPEN_ROOM = np.pad(np.zeros((16, 16), np.int32), 1, constant_values=1)
@@ -296,6 +360,8 @@ def run_main(module, argv, monkeypatch, capsys):
         ["n_envs=6", "ppo.minibatches=4"],
         ["heldout.interior=[1,5]"],
         ["levels.min_interior=0"],
+        ["levels.solver=bogus"],
+        ["heldout.n_nca=-1"],
     ],
 )
 def test_train_agent_bad_input_is_one_error_line(argv, monkeypatch, capsys, tmp_path):

@@ -12,7 +12,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from nca_qd.domains import make_domain
-from nca_qd.domains.maze import MazeDomain, horizon_for, longest_shortest_path, run_agent, solve_start_goal
+from nca_qd.domains.maze import (
+    MazeDomain,
+    double_sweep_path,
+    horizon_for,
+    longest_shortest_path,
+    run_agent,
+    solve_start_goal,
+)
 from nca_qd.io import load_map, reference_maps_dir
 from nca_qd.measures import entropy
 from nca_qd.sim import maze_agent as ma
@@ -116,6 +123,59 @@ def test_longest_shortest_path_matches_python_bfs(shape, density, seed):
     assert int(length) == ref_len
     assert tuple(np.asarray(start)) == ref_start
     assert tuple(np.asarray(goal)) == ref_goal
+
+
+_sweep = jax.jit(double_sweep_path)
+
+
+def perfect_maze(rng: np.random.Generator, cells: tuple[int, int]) -> np.ndarray:
+    """A maze without cycles (a random spanning tree of a cell grid, by depth-first search):
+    free [2r-1, 2c-1], cells at even coordinates, passages between them."""
+    r, c = cells
+    free = np.zeros((2 * r - 1, 2 * c - 1), bool)
+    seen = np.zeros((r, c), bool)
+    stack = [(int(rng.integers(r)), int(rng.integers(c)))]
+    seen[stack[0]] = True
+    free[2 * stack[0][0], 2 * stack[0][1]] = True
+    while stack:
+        y, x = stack[-1]
+        nxt = [(y + dy, x + dx) for dy, dx in ((0, 1), (1, 0), (0, -1), (-1, 0))]
+        nxt = [(a, b) for a, b in nxt if 0 <= a < r and 0 <= b < c and not seen[a, b]]
+        if not nxt:
+            stack.pop()
+            continue
+        a, b = nxt[int(rng.integers(len(nxt)))]
+        seen[a, b] = True
+        free[2 * a, 2 * b] = free[y + a, x + b] = True
+        stack.append((a, b))
+    return free
+
+
+@settings(max_examples=25, deadline=None)
+@given(shape=st.sampled_from([(5, 5), (6, 8)]), density=st.floats(0.0, 0.8), seed=st.integers(0, 2**31 - 1))
+def test_double_sweep_gives_a_shortest_path_no_longer_than_the_longest(shape, density, seed):
+    """Its ends lie on free tiles at exactly the reported BFS distance (an independent BFS),
+    never beyond the exact longest shortest path."""
+    free = np.random.default_rng(seed).random(shape) >= density
+    length, start, goal = _sweep(jnp.asarray(free), jax.random.PRNGKey(seed % 1000))
+    length, start, goal = int(length), tuple(np.asarray(start)), tuple(np.asarray(goal))
+    exact, _, _ = reference_lsp(free)
+    assert length <= exact
+    if not free.any():
+        assert length == 0 and start == goal == (-1, -1)
+        return
+    assert free[start] and free[goal]
+    assert bfs(free, start)[goal] == length
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_double_sweep_is_exact_on_mazes_without_cycles(seed):
+    rng = np.random.default_rng(seed)
+    free = np.stack([perfect_maze(rng, (6, 7)) for _ in range(3)])
+    length, _, _ = _sweep(jnp.asarray(free), jax.random.PRNGKey(seed))
+    exact, _, _ = _lsp(jnp.asarray(free))
+    np.testing.assert_array_equal(np.asarray(length), np.asarray(exact))
+    assert (np.asarray(length) > 10).all()
 
 
 def test_longest_shortest_path_batched_16x16():

@@ -1,7 +1,10 @@
 """Training levels for the maze agent: domain randomisation, ACCEL edits, a level replay buffer.
 
 All fixed-shape JAX (levels are bordered ``[H, W]`` int32 layouts with the domain's start and goal:
-the two ends of the longest shortest path, :func:`nca_qd.domains.maze.longest_shortest_path`).
+the two ends of the longest shortest path, :func:`nca_qd.domains.maze.longest_shortest_path`;
+on interiors beyond 32x32, where that exact all-pairs search costs megabytes per level and
+step, the ends of a long shortest path by a double BFS sweep,
+:func:`nca_qd.domains.maze.double_sweep_path`: ``levels.solver``, :func:`solver_for`).
 
 * Domain randomisation (:func:`random_levels`): an ``h x w`` interior whose tiles are walls with
   a probability drawn per level uniformly from ``density``, bordered by walls. ``tries``
@@ -32,7 +35,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from nca_qd.domains.maze import longest_shortest_path
+from nca_qd.domains.maze import double_sweep_path, longest_shortest_path
 from nca_qd.sim.maze_agent import EMPTY, WALL
 
 
@@ -50,8 +53,30 @@ def border(interior: jax.Array) -> jax.Array:
     return jnp.pad(interior, pad, constant_values=WALL)
 
 
-def solve(layouts: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """``(length, start, goal)`` of bordered layouts ``[..., H, W]`` (the domain's definition)."""
+# Interiors up to this many tiles get the exact start/goal of the domain's definition; larger
+# ones the double BFS sweep (levels.solver=auto).
+EXACT_SOLVER_MAX_TILES = 32 * 32
+
+
+def solver_for(method: str | None, shape: tuple[int, int]) -> str:
+    """``exact`` or ``sweep`` for ``levels.solver`` (``auto``: exact up to 32x32 interiors)."""
+    m = "auto" if method is None else str(method)
+    if m == "auto":
+        return "exact" if shape[0] * shape[1] <= EXACT_SOLVER_MAX_TILES else "sweep"
+    if m not in ("exact", "sweep"):
+        raise ValueError(f"levels.solver must be auto, exact or sweep, got {method!r}")
+    return m
+
+
+def solve(
+    layouts: jax.Array, method: str = "exact", key: jax.Array | None = None
+) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """``(length, start, goal)`` of bordered layouts ``[..., H, W]``: ``exact``, the domain's
+    definition (the ends of a longest shortest path; its cost per BFS step grows with the area
+    squared, 2.4 MB per 66x66 level), or ``sweep``, the ends of a long shortest path found by a
+    double BFS sweep from a random free tile (``key``; exact on mazes without cycles)."""
+    if method == "sweep":
+        return double_sweep_path(layouts == EMPTY, key)
     return longest_shortest_path(layouts == EMPTY)
 
 
@@ -119,11 +144,32 @@ def _pick_dr(layouts: jax.Array, length: jax.Array, start: jax.Array, goal: jax.
 
 
 def random_levels(
-    key: jax.Array, n: int, shape: tuple[int, int], density: tuple[float, float], tries: int = 2
+    key: jax.Array,
+    n: int,
+    shape: tuple[int, int],
+    density: tuple[float, float],
+    tries: int = 2,
+    solver: str = "exact",
 ) -> Levels:
     """``n`` solvable domain-randomised levels of interior ``shape`` (see module doc)."""
     layouts = _dr_candidates(key, n, shape, density, tries)
-    return _pick_dr(layouts, *solve(layouts))
+    return _pick_dr(layouts, *solve(layouts, solver, jax.random.fold_in(key, 1)))
+
+
+def nca_levels(
+    key: jax.Array,
+    n: int,
+    shape: tuple[int, int],
+    sigma: tuple[float, float],
+    n_iters: int,
+    tries: int = 2,
+    solver: str = "exact",
+) -> Levels:
+    """``n`` solvable levels of interior ``shape`` from random NCA generators (the first
+    solvable of ``tries`` per level, else an open room): held-out mazes that look like the QD
+    search's, at any size."""
+    layouts = _nca_candidates(key, n, shape, sigma, n_iters, tries)
+    return _pick_dr(layouts, *solve(layouts, solver, jax.random.fold_in(key, 1)))
 
 
 def _edit_candidates(key: jax.Array, layouts: jax.Array, max_edits: int) -> jax.Array:
@@ -148,11 +194,11 @@ def _pick_edit(parents: Levels, child: jax.Array, length, start, goal) -> Levels
     )
 
 
-def edit_levels(key: jax.Array, levels: Levels, max_edits: int) -> Levels:
+def edit_levels(key: jax.Array, levels: Levels, max_edits: int, solver: str = "exact") -> Levels:
     """ACCEL's small edits: flip 1..``max_edits`` random interior tiles of each level ``[n]``;
     a child without a start-goal path is replaced by its parent."""
     child = _edit_candidates(key, levels.layout, max_edits)
-    return _pick_edit(levels, child, *solve(child))
+    return _pick_edit(levels, child, *solve(child, solver, jax.random.fold_in(key, 1)))
 
 
 class LevelBuffer(NamedTuple):
@@ -225,6 +271,8 @@ def choose_levels(
     ``cfg.method == "dr"`` every level is domain randomised.
     """
     k_u, k_idx, k_dr, k_ed = jax.random.split(key, 4)
+    solver = solver_for(cfg.get("solver"), shape)
+    k_solve = jax.random.fold_in(key, 1)  # the sweep's first tiles (the exact solver uses none)
     tries = int(cfg.tries)
     cand = _dr_candidates(k_dr, n, shape, tuple(cfg.density), tries)
     min_interior = cfg.get("min_interior")
@@ -233,7 +281,7 @@ def choose_levels(
     if str(cfg.method) == "dr":
         if min_interior is not None:
             cand = shrink(k_size, cand, int(min_interior))
-        dr = _pick_dr(cand, *solve(cand))
+        dr = _pick_dr(cand, *solve(cand, solver, k_solve))
         return dr, jnp.full((n,), -1, jnp.int32), jnp.full((n,), 2, jnp.int32)
     nca_prob = float(cfg.get("nca_prob", 0.0) or 0.0)
     if nca_prob > 0:
@@ -254,9 +302,9 @@ def choose_levels(
     edit = ~replay & (u[:, 1] < float(cfg.edit_prob)) & (n_valid > 0)
     parents = jax.tree.map(lambda a: a[idx], buf.levels)
     child = _edit_candidates(k_ed, parents.layout, int(cfg.max_edits))
-    # One exact start/goal solve for the random candidates and the edited children together.
+    # One start/goal solve for the random candidates and the edited children together.
     hh, ww = child.shape[1:]
-    length, start, goal = solve(jnp.concatenate([cand.reshape(n * tries, hh, ww), child], 0))
+    length, start, goal = solve(jnp.concatenate([cand.reshape(n * tries, hh, ww), child], 0), solver, k_solve)
     unflat = lambda a: a[: n * tries].reshape((n, tries) + a.shape[1:])  # noqa: E731
     dr = _pick_dr(cand, unflat(length), unflat(start), unflat(goal))
     edited = _pick_edit(parents, child, length[n * tries :], start[n * tries :], goal[n * tries :])

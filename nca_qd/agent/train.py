@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
-from nca_qd.agent.levels import Levels, random_levels, solve
+from nca_qd.agent.levels import Levels, nca_levels, random_levels, solve, solver_for
 from nca_qd.agent.network import make_net, n_params
 from nca_qd.agent.ppo import Trainer, TrainState, make_heldout_eval
 from nca_qd.agent.shipped import save_agent
@@ -113,6 +113,13 @@ def validate(cfg: DictConfig) -> None:
             or not all(isinstance(v, int) and not isinstance(v, bool) and v >= 2 for v in inter)
         ):
             raise NcaQdError(f"{name} must be two integers >= 2, got {inter!r}")
+    solver = OmegaConf.select(cfg, "levels.solver")
+    if solver is not None and solver not in ("auto", "exact", "sweep"):
+        raise NcaQdError(f"levels.solver must be auto, exact or sweep, got {solver!r}")
+    if OmegaConf.select(cfg, "heldout.n_nca") is not None:  # runs from before NCA held-out mazes lack it
+        number("heldout.n_nca", low=0, strict=False)
+        if OmegaConf.select(cfg, "heldout.nca_iters") is not None:
+            number("heldout.nca_iters")
     if cfg.levels.method not in ("accel", "dr"):
         raise NcaQdError(f"levels.method must be accel or dr, got {cfg.levels.method!r}")
     for p in ("levels.density", "heldout.density"):
@@ -148,18 +155,48 @@ def heldout_interior(cfg: DictConfig) -> tuple[int, int]:
     return int(inter[0]), int(inter[1])
 
 
+def heldout_nca_iters(cfg: DictConfig) -> int:
+    """NCA iterations of the held-out NCA mazes: ``heldout.nca_iters``, else the maze domain's
+    rule (C = 50 at 16x16 to C_eval = 200 at 64x64: linear in the side)."""
+    n = OmegaConf.select(cfg, "heldout.nca_iters")
+    if n is not None:
+        return int(n)
+    h, w = heldout_interior(cfg)
+    return max(1, round(50 * (h * w) ** 0.5 / 16))
+
+
 def heldout_levels(cfg: DictConfig) -> tuple[Levels, list[str]]:
-    """The fixed held-out set: ``n_random`` random solvable mazes + the paper's map (bordered)."""
+    """The fixed held-out set: ``n_random`` random solvable mazes, ``n_nca`` mazes of random NCA
+    generators (the QD search's kind of maze) and the paper's map (bordered)."""
     from nca_qd.io import load_map
 
     hd = cfg.heldout
     h, w = heldout_interior(cfg)
-    names = [f"random_{i}" for i in range(int(hd.n_random))]
+    solver = solver_for(OmegaConf.select(cfg, "levels.solver"), (h, w))
+    n_nca = int(OmegaConf.select(cfg, "heldout.n_nca") or 0)
+    names = [f"random_{i}" for i in range(int(hd.n_random))] + [f"nca_{i}" for i in range(n_nca)]
     parts = []
     if int(hd.n_random) > 0:
         parts.append(
             random_levels(
-                jax.random.PRNGKey(int(hd.seed)), int(hd.n_random), (h, w), tuple(hd.density), tries=8
+                jax.random.PRNGKey(int(hd.seed)),
+                int(hd.n_random),
+                (h, w),
+                tuple(hd.density),
+                tries=8,
+                solver=solver,
+            )
+        )
+    if n_nca > 0:
+        parts.append(
+            nca_levels(
+                jax.random.fold_in(jax.random.PRNGKey(int(hd.seed)), 2),
+                n_nca,
+                (h, w),
+                tuple(cfg.levels.nca_sigma),
+                heldout_nca_iters(cfg),
+                tries=8,
+                solver=solver,
             )
         )
     if hd.paper_map:

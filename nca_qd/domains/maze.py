@@ -116,6 +116,70 @@ def longest_shortest_path(free: jax.Array) -> tuple[jax.Array, jax.Array, jax.Ar
     return length.reshape(batch), start.reshape(batch + (2,)), goal.reshape(batch + (2,))
 
 
+def _bfs_distances(free: jax.Array, source: jax.Array) -> jax.Array:
+    """Shortest 4-connected distances ``[B, H, W]`` (int32, -1 = unreached) from one flat
+    ``source [B]`` per grid of ``free [B, H, W]``; a source on a wall (or -1) reaches nothing.
+    One ``lax.while_loop`` for the batch, one dilation of the reached set per step."""
+    b, h, w = free.shape
+    flat = jnp.arange(h * w, dtype=jnp.int32).reshape(1, h, w)
+    reach0 = (flat == source[:, None, None]) & free
+    dist0 = jnp.where(reach0, 0, -1).astype(jnp.int32)
+
+    def body(c):
+        reach, dist, t, _ = c
+        p = jnp.pad(reach, ((0, 0), (1, 1), (1, 1)))
+        new = (reach | p[:, :-2, 1:-1] | p[:, 2:, 1:-1] | p[:, 1:-1, :-2] | p[:, 1:-1, 2:]) & free
+        frontier = new & ~reach
+        return new, jnp.where(frontier, t + 1, dist), t + 1, jnp.any(frontier)
+
+    _, dist, _, _ = jax.lax.while_loop(lambda c: c[3], body, (reach0, dist0, jnp.int32(0), jnp.array(True)))
+    return dist
+
+
+def double_sweep_path(
+    free: jax.Array, key: jax.Array | None = None, sources: int = 4
+) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """A long shortest path of grid(s) ``free [..., H, W]`` by a double BFS sweep: from
+    ``sources`` free tiles (random with ``key``, else the first ones, row-major) to the
+    farthest tile ``a`` of the one that reaches farthest, then from ``a`` to the farthest tile
+    ``b``. Same returns as :func:`longest_shortest_path` (``length`` = the distance from ``a``
+    to ``b``; 0 and ``a == b`` when ``a`` is isolated). Several first sources keep a walled-in
+    tile from standing for the whole maze.
+
+    Exact on mazes without cycles (a tree's diameter), a lower bound elsewhere. Its cost grows
+    like the map's area times the path's length (about 2 MB of scratch for 16 levels at 66x66,
+    against 194 MB for the exact all-pairs search): it places start and goal on large training
+    levels, not in the domain's objective, which stays exact.
+    """
+    free = jnp.asarray(free, bool)
+    batch = free.shape[:-2]
+    h, w = free.shape[-2:]
+    free = free.reshape((-1, h, w))
+    nb = free.shape[0]
+    flat = free.reshape(nb, -1)
+    any_free = jnp.any(flat, axis=1)
+    if key is None:  # the first free tiles, row-major
+        score = jnp.where(flat, -jnp.arange(h * w, dtype=jnp.float32), -jnp.inf)
+    else:  # uniformly random free tiles
+        score = jnp.where(flat, jax.random.uniform(key, flat.shape), -1.0)
+    k = min(int(sources), h * w)
+    _, firsts = jax.lax.top_k(score, k)  # [B, k]
+    firsts = jnp.where(jnp.take_along_axis(flat, firsts, 1), firsts, -1).astype(jnp.int32)
+    d1 = _bfs_distances(jnp.repeat(free, k, axis=0), firsts.reshape(-1)).reshape(nb, k, -1)
+    far = jnp.max(d1, axis=2)  # [B, k] eccentricity of each first source (-1: a wall)
+    best = jnp.argmax(far, axis=1)
+    d1 = jnp.take_along_axis(d1, best[:, None, None], 1)[:, 0]
+    a = jnp.where(any_free, jnp.argmax(d1, axis=1), -1).astype(jnp.int32)
+    d2 = _bfs_distances(free, a).reshape(flat.shape)
+    b = jnp.where(any_free, jnp.argmax(d2, axis=1), -1).astype(jnp.int32)
+    length = jnp.where(any_free, jnp.max(d2, axis=1), 0).astype(jnp.int32)
+
+    def rc(i):
+        return jnp.where((i >= 0)[:, None], jnp.stack([i // w, i % w], axis=1), -1).astype(jnp.int32)
+
+    return length.reshape(batch), rc(a).reshape(batch + (2,)), rc(b).reshape(batch + (2,))
+
+
 # --------------------------------------------------------------------------- helpers at any size
 
 
