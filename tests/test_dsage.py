@@ -147,7 +147,10 @@ def _rows(run_dir):
         return list(csv.DictReader(fh))
 
 
-def test_a_tiny_dsage_run_ends_and_resumes_to_the_same_end(tmp_path):
+@pytest.mark.parametrize("resume_from", ["checkpoint", "snapshot"])
+def test_a_tiny_dsage_run_ends_and_resumes_to_the_same_end(tmp_path, resume_from):
+    """Resumed from the full checkpoint, or on a "fresh clone" from the portable snapshot
+    alone (the checkpoint deleted), the run ends where the uninterrupted one ends."""
     whole = tmp_path / "whole"
     state = Experiment(compose_config("run", [*TINY_DSAGE, "qd.n_evals=90"]), whole).run()
     assert int(state.evaluations) == 90
@@ -162,9 +165,13 @@ def test_a_tiny_dsage_run_ends_and_resumes_to_the_same_end(tmp_path):
     # interrupted after the second outer iteration (its budget ends there, nothing is cut)
     parts = tmp_path / "parts"
     first = int(rows[1]["evaluations"])
-    Experiment(compose_config("run", [*TINY_DSAGE, f"qd.n_evals={first}"]), parts).run()
+    snap = ["snapshot.enabled=true"] if resume_from == "snapshot" else []
+    Experiment(compose_config("run", [*TINY_DSAGE, f"qd.n_evals={first}", *snap]), parts).run()
     assert (parts / "dsage_data.npz").is_file()
-    cfg = compose_config("run", [*TINY_DSAGE, "qd.n_evals=90"])
+    if resume_from == "snapshot":
+        (parts / "checkpoint.npz").unlink()
+        assert (parts / "snapshot.npz").is_file()
+    cfg = compose_config("run", [*TINY_DSAGE, "qd.n_evals=90", *snap])
     resumed = Experiment(cfg, parts).run(resume=True)
     assert int(resumed.evaluations) == 90
     for a, b in zip(_rows(whole), _rows(parts)):
