@@ -122,6 +122,12 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
             f"{run_dir} is a {str(algo).upper()} run: its layouts exist at the training size only, "
             "so select.by=s_eval does not apply (use select.by=s)"
         )
+    if not scales:
+        log.info(
+            "%s is a %s run: its layouts are evaluated at S only (no S_eval, tiling or other sizes)",
+            run_dir,
+            str(algo).upper(),
+        )
     cells_idx = pick_cells(archive["objective"], ecfg["select"]["pool"] if by_s_eval else ecfg["elites"])
     tiles = domain.layout_tiles
     plan = Plan(ecfg, dcfg, name, scales=scales)
