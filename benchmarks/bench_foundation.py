@@ -63,10 +63,29 @@ def bench_generation() -> None:
         )
 
 
+UNTRAINED = "untrained_lstm"
+
+
+def register_untrained(kind: str) -> None:
+    """``untrained_lstm<N>``: the learned agent's network with an N-unit LSTM and random
+    weights, as a maze agent kind. It rarely reaches a goal, so its episodes run to the horizon:
+    an upper bound on any trained agent of that width, and the cost ratio between widths (the
+    paper's LSTM-256 against the shipped 64) with no trained weights needed."""
+    from nca_qd.agent.network import AgentNet, init_params, learned_policy
+    from nca_qd.sim.maze_agent import register_policy
+
+    net = AgentNet(hidden=int(kind[len(UNTRAINED) :]))
+    register_policy(kind, lambda: learned_policy(net, init_params(net, jax.random.PRNGKey(0))))
+
+
 def bench_maze_iteration(iters: int, agent: str) -> None:
     """Wall time of one maze CMA-MAE iteration with the path-length measure from ``agent``."""
     from experiments.cli import compose_config
     from nca_qd.experiment import Experiment
+
+    if agent.startswith(UNTRAINED):
+        register_untrained(agent)
+        iters = min(iters, 5)  # every episode runs to the horizon
 
     cfg = compose_config("run", ["domain=maze", "qd.progress=false", f"domain.agent.kind={agent}"])
     exp = Experiment(cfg, run_dir="/tmp/nca_qd_bench_unused")
@@ -92,8 +111,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--maze-iters", type=int, default=30)
     ap.add_argument(
         "--maze-agents",
-        default="learned,wall_follower",
-        help="agents behind the path-length measure (the first is the default)",
+        default="learned,wall_follower,untrained_lstm64,untrained_lstm256",
+        help="agents behind the path-length measure (the first is the default; untrained_lstm<N>: "
+        "random weights, N LSTM units, episodes to the horizon)",
     )
     args = ap.parse_args([] if argv is None else argv)
     print("== foundation ==")
