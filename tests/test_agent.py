@@ -370,6 +370,48 @@ def test_train_agent_bad_input_is_one_error_line(argv, monkeypatch, capsys, tmp_
     assert code == 2 and len(lines) == 1 and lines[0].startswith("error: ")
 
 
+def test_train_agent_resumes_from_its_compressed_checkpoint_to_the_same_end(tmp_path, monkeypatch, capsys):
+    """Stopped after 2 of 4 updates and resumed, training writes the metrics an uninterrupted
+    run writes; its checkpoint is zlib-compressed (a level buffer of 0/1 tiles)."""
+    import csv
+
+    tiny = [
+        "n_envs=8",
+        "horizon=16",
+        "interior=[4,4]",
+        "network.hidden=8",
+        "network.head_hidden=8",
+        "network.conv_features=4",
+        "ppo.minibatches=2",
+        "heldout.n_random=2",
+        "heldout.paper_map=null",
+        "heldout.every_updates=2",
+        "heldout.episodes=2",
+        "checkpoint_every=1",
+        "progress=false",
+        "levels.min_fill=2",
+        "levels.buffer_size=8",
+    ]
+    whole, part = tmp_path / "whole", tmp_path / "part"
+    for argv in (
+        [f"run_dir={whole}", *tiny, "total_env_steps=512"],
+        [f"run_dir={part}", *tiny, "total_env_steps=256"],
+        [f"resume={part}", "total_env_steps=512"],
+    ):
+        code, _, err = run_main("experiments.train_agent", argv, monkeypatch, capsys)
+        assert code == 0, err
+    assert (part / "checkpoint.msgpack").read_bytes()[:1] == b"\x78"  # zlib
+
+    def rows(d):
+        with open(d / "metrics.csv") as fh:
+            return [
+                {k: r[k] for k in ("update", "env_steps", "mean_return", "loss", "heldout_success")}
+                for r in csv.DictReader(fh)
+            ]
+
+    assert len(rows(whole)) == 4 and rows(whole) == rows(part)
+
+
 def fake_maze_run(path):
     """A maze QD run directory holding one random generator (what maze_transfer reads)."""
     from experiments.cli import compose_config

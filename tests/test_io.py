@@ -50,3 +50,21 @@ def test_round_trip_through_save(tmp_path):
     np.testing.assert_array_equal(back.to_array(".@e"), layout)
     data = json.loads((tmp_path / "out.json").read_text())
     assert data["n_row"] == 2 and data["n_col"] == 3 and data["weight"] is False
+
+
+@pytest.mark.parametrize("compress", [False, True])
+def test_pytree_round_trip_compressed_or_not_and_a_truncated_file_is_one_error(tmp_path, compress):
+    from nca_qd.errors import NcaQdError
+    from nca_qd.io import load_pytree, save_pytree
+
+    tree = {"layouts": np.zeros((50, 66, 66), np.int32), "step": np.int64(7), "w": np.arange(5.0)}
+    tree["layouts"][:, ::3] = 1
+    path = tmp_path / "ckpt.msgpack"
+    save_pytree(path, tree, compress=compress)
+    size = path.stat().st_size
+    assert (size < tree["layouts"].nbytes / 20) == compress
+    back = load_pytree(path, {k: np.zeros_like(v) for k, v in tree.items()})
+    assert all(np.array_equal(back[k], tree[k]) for k in tree)
+    path.write_bytes(path.read_bytes()[: size // 2])
+    with pytest.raises(NcaQdError, match="checkpoint does not match"):
+        load_pytree(path, tree)

@@ -1,12 +1,14 @@
 """A training run of the maze agent on disk (``python -m experiments.train_agent``).
 
 The run directory holds ``config.yaml``, ``checkpoint.msgpack`` (the whole
-:class:`~nca_qd.agent.ppo.TrainState` plus counters; atomic, every ``checkpoint_every`` updates,
-at the end and on Ctrl-C), ``best.msgpack`` (the parameters with the best held-out success) and
-``metrics.csv``: per update ``update, env_steps, wall_seconds, steps_per_second, mean_return,
-train_success`` (episodes of the training levels), the losses, the level sampler's figures and,
-every ``heldout.every_updates``, ``heldout_success`` / ``heldout_length`` on the fixed held-out
-set (full horizon). Deterministic given ``seed``; a resumed run continues from its checkpoint.
+:class:`~nca_qd.agent.ppo.TrainState` plus counters, zlib-compressed: 0.8 MB with a level buffer of
+1,000 66x66 levels; atomic, every ``checkpoint_every`` updates, at the end and on Ctrl-C: small
+enough to commit as a training leg's snapshot), ``best.msgpack`` (the parameters with the best
+held-out success) and ``metrics.csv``: per update ``update, env_steps, wall_seconds,
+steps_per_second, mean_return, train_success`` (episodes of the training levels), the losses, the
+level sampler's figures and, every ``heldout.every_updates``, ``heldout_success`` /
+``heldout_length`` on the fixed held-out set (full horizon). Deterministic given ``seed``; a resumed
+run continues from its checkpoint.
 """
 
 from __future__ import annotations
@@ -271,7 +273,7 @@ class AgentRun:
         writer.writeheader()
         writer.writerows(rows)
         atomic_write_text(self.run_dir / METRICS_FILE, buf.getvalue())
-        save_pytree(self.run_dir / CHECKPOINT_FILE, tree)
+        save_pytree(self.run_dir / CHECKPOINT_FILE, tree, compress=True)  # 18 MB -> 0.8 MB at 64x64
 
     def load(self) -> tuple[dict[str, Any], list[dict[str, Any]]]:
         path = self.run_dir / CHECKPOINT_FILE
