@@ -305,6 +305,35 @@ def test_heldout_set_with_nca_mazes_at_a_larger_size():
     assert not np.array_equal(nca[0], nca[1])  # three different generators
 
 
+def test_heldout_set_with_mazes_of_a_qd_runs_elites(tmp_path):
+    """heldout.elites_from: the run's solvable elites grown at the held-out size; an unknown
+    or non-maze directory is one clear error."""
+    from experiments.cli import compose_config
+    from nca_qd.agent.train import heldout_levels
+    from nca_qd.errors import NcaQdError
+
+    run = tmp_path / "maze_run"
+    fake_maze_run(run)  # one generator in cell 0 (objective 1), cell 1 empty
+    over = ["heldout.interior=[20,20]", "heldout.n_random=1", "heldout.paper_map=null", "heldout.n_elites=5"]
+    cfg = compose_config("train_agent", [*over, f"heldout.elites_from={run}"])
+    levels, names = heldout_levels(cfg)
+    assert names == ["random_0", "elite_c0"]  # the only solvable elite, sampled once
+    from nca_qd.agent.train import heldout_nca_iters
+    from nca_qd.domains import make_domain
+    from nca_qd.pipeline import generate, make_generator
+    from nca_qd.run_dir import load_archive, load_run_config
+
+    domain = make_domain(load_run_config(run).domain)
+    genotype = load_archive(run, "result")["genotypes"][[0]]
+    grown = generate(domain, make_generator(domain), genotype, shape=(20, 20), n_iters=heldout_nca_iters(cfg))
+    lay = np.asarray(levels.layout[-1])
+    np.testing.assert_array_equal(lay, np.pad(grown[0], 1, constant_values=1))
+    start, goal = tuple(np.asarray(levels.start[-1])), tuple(np.asarray(levels.goal[-1]))
+    assert lay[start] == 0 and lay[goal] == 0 and start != goal
+    with pytest.raises(NcaQdError, match="not a run directory"):
+        heldout_levels(compose_config("train_agent", [*over, f"heldout.elites_from={tmp_path}"]))
+
+
 # --------------------------------------------------------------------------- shipped agent
 
 OPEN_ROOM = np.pad(np.zeros((16, 16), np.int32), 1, constant_values=1)

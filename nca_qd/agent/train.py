@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
-from nca_qd.agent.levels import Levels, nca_levels, random_levels, solve, solver_for
+from nca_qd.agent.levels import Levels, border, nca_levels, random_levels, solve, solver_for
 from nca_qd.agent.network import make_net, n_params
 from nca_qd.agent.ppo import Trainer, TrainState, make_heldout_eval
 from nca_qd.agent.shipped import save_agent
@@ -122,6 +122,8 @@ def validate(cfg: DictConfig) -> None:
         number("heldout.n_nca", low=0, strict=False)
         if OmegaConf.select(cfg, "heldout.nca_iters") is not None:
             number("heldout.nca_iters")
+    if OmegaConf.select(cfg, "heldout.elites_from"):
+        number("heldout.n_elites")
     if cfg.levels.method not in ("accel", "dr"):
         raise NcaQdError(f"levels.method must be accel or dr, got {cfg.levels.method!r}")
     for p in ("levels.density", "heldout.density"):
@@ -167,9 +169,53 @@ def heldout_nca_iters(cfg: DictConfig) -> int:
     return max(1, round(50 * (h * w) ** 0.5 / 16))
 
 
+def archive_elite_levels(cfg: DictConfig, shape: tuple[int, int], solver: str) -> tuple[Levels, list[str]]:
+    """``heldout.n_elites`` mazes grown at ``shape`` by generators of a maze QD run's result
+    archive (``heldout.elites_from``): a seeded sample of its solvable elites, each run for
+    :func:`heldout_nca_iters` iterations from the domain's seed; the unsolvable are left out."""
+    from nca_qd.domains import make_domain
+    from nca_qd.pipeline import generate, make_generator
+    from nca_qd.run_dir import load_archive, load_run_config
+
+    run_dir = Path(str(cfg.heldout.elites_from))
+    if not (run_dir / "config.yaml").is_file():
+        raise NcaQdError(f"heldout.elites_from: {run_dir} is not a run directory (config.yaml missing)")
+    run_cfg = load_run_config(run_dir)
+    if not str(run_cfg.domain.name).startswith("maze"):
+        raise NcaQdError(f"heldout.elites_from: {run_dir} is a {run_cfg.domain.name} run, not a maze run")
+    archive = load_archive(run_dir, "result")
+    objective = np.asarray(archive["objective"])
+    solvable = np.flatnonzero(np.isfinite(objective) & (objective > 0))
+    if solvable.size == 0:
+        raise NcaQdError(f"heldout.elites_from: {run_dir} holds no elite with a solvable maze")
+    rng = np.random.default_rng(int(cfg.heldout.seed))
+    cells = np.sort(rng.choice(solvable, min(int(cfg.heldout.n_elites), solvable.size), replace=False))
+    domain = make_domain(run_cfg.domain)
+    regions = generate(
+        domain,
+        make_generator(domain),
+        archive["genotypes"][cells],
+        shape=shape,
+        n_iters=heldout_nca_iters(cfg),
+    )
+    layouts = border(jnp.asarray(regions, jnp.int32))
+    length, start, goal = solve(layouts, solver, jax.random.PRNGKey(int(cfg.heldout.seed)))
+    keep = np.flatnonzero(np.asarray(length) > 0)
+    if keep.size < cells.size:
+        log.info(
+            "held-out elites: %d of %d grow unsolvable mazes at %s, left out",
+            cells.size - keep.size,
+            cells.size,
+            shape,
+        )
+    pick = lambda a: jnp.asarray(a)[keep]  # noqa: E731
+    return Levels(pick(layouts), pick(start), pick(goal)), [f"elite_c{int(c)}" for c in cells[keep]]
+
+
 def heldout_levels(cfg: DictConfig) -> tuple[Levels, list[str]]:
     """The fixed held-out set: ``n_random`` random solvable mazes, ``n_nca`` mazes of random NCA
-    generators (the QD search's kind of maze) and the paper's map (bordered)."""
+    generators (the QD search's kind of maze), the paper's map (bordered) and ``n_elites`` mazes of
+    a QD run's elites (``elites_from``)."""
     from nca_qd.io import load_map
 
     hd = cfg.heldout
@@ -215,6 +261,10 @@ def heldout_levels(cfg: DictConfig) -> tuple[Levels, list[str]]:
                 log.warning("held-out map %s is %s, not %s: left out", path, region.shape, (h, w))
         else:
             log.warning("held-out map %s not found: left out", path)
+    if OmegaConf.select(cfg, "heldout.elites_from"):
+        elites, elite_names = archive_elite_levels(cfg, (h, w), solver)
+        parts.append(elites)
+        names += elite_names
     if not parts:
         raise NcaQdError("the held-out set is empty (heldout.n_random=0 and no paper_map)")
     levels = jax.tree.map(lambda *xs: jnp.concatenate(xs, 0), *parts)
