@@ -15,6 +15,8 @@ held out. Both congestion rules are reported ("crowding", the default, and "move
 rule alone). Two bounds are printed beside them: the per-run congestion agreement that no
 screen with its own random streams can exceed (RHCR's seed-to-seed spread), and the Spearman
 correlation of RHCR's mean throughput with minus the screen's mean crowding in full-horizon runs.
+And RHCR's split-half agreement with itself (seeds 0-4 against seeds 5-9: Spearman of mean
+throughput, agreement of the majority verdicts): the ceiling of the fidelity targets.
 
 Planners: ``BENCH_SCREEN_PLANNERS`` (default ``pibt,windowed``) picks the screen's planners that
 fidelity and speed measure: PIBT with both congestion rules, the windowed prioritized planner
@@ -162,19 +164,40 @@ def make_layouts(n_min: int = 40, seed: int = 1) -> list[tuple[str, list[str]]]:
     return out
 
 
-def rhcr_figures(layouts, cache: str | None) -> dict:
-    """name -> list of (throughput, success) over SEEDS, exact RHCR, threads=1."""
+def rhcr_figures(layouts, cache: str | None, seeds: list[int] = SEEDS) -> dict:
+    """name -> list of (throughput, success, CPU-s) over ``seeds``, exact RHCR, threads=1
+    (cached under the layout's name for SEEDS, ``name@<first seed>`` for other seeds)."""
     from nca_qd.sim.rhcr import simulate_many
 
     done = json.loads(Path(cache).read_text()) if cache and Path(cache).is_file() else {}
+    tag = "" if list(seeds) == SEEDS else f"@{seeds[0]}"
     for name, rows in layouts:
-        if name in done:
+        if name + tag in done:
             continue
-        runs = simulate_many(rows, SCENARIO, AGENTS, T, SEEDS, threads=1)
-        done[name] = [[r.throughput, r.success, r.cpu_seconds] for r in runs]
+        runs = simulate_many(rows, SCENARIO, AGENTS, T, list(seeds), threads=1)
+        done[name + tag] = [[r.throughput, r.success, r.cpu_seconds] for r in runs]
         if cache:
             Path(cache).write_text(json.dumps(done))
-    return done
+    return {name: done[name + tag] for name, _ in layouts}
+
+
+def split_half(layouts, exact: dict, cache: str | None) -> dict:
+    """RHCR against itself: its mean throughput and majority verdict over SEEDS against those
+    over the next as many seeds — the agreement no screen can be expected to exceed."""
+    other = [s + len(SEEDS) for s in SEEDS]
+    again = rhcr_figures(layouts, cache, other)
+    names = [n for n, _ in layouts]
+    a = np.array([np.mean([r[0] for r in exact[n]]) for n in names])
+    b = np.array([np.mean([r[0] for r in again[n]]) for n in names])
+    ok_a = np.array([np.mean([r[1] for r in exact[n]]) > 0.5 for n in names])
+    ok_b = np.array([np.mean([r[1] for r in again[n]]) > 0.5 for n in names])
+    return {
+        "rhcr_split_half": f"seeds {SEEDS[0]}-{SEEDS[-1]} vs {other[0]}-{other[-1]}",
+        "layouts": len(names),
+        "spearman_mean_throughput": round(_spearman(a, b), 3),
+        "congestion_agreement_layout_majority": round(float(np.mean(ok_a == ok_b)), 3),
+        "mean_abs_throughput_difference": round(float(np.mean(np.abs(a - b))), 3),
+    }
 
 
 def _planners() -> list[str]:
@@ -225,6 +248,7 @@ def fidelity() -> None:
     k = ex_ok.sum(1)
     ceiling = 1.0 - float(np.minimum(k, len(SEEDS) - k).sum()) / ex_ok.size
     print(f"per-run congestion agreement ceiling (RHCR's own seed-to-seed spread): {ceiling:.3f}")
+    print(json.dumps(split_half(layouts, exact, cache)))
     setups = [("pibt", c) for c in ("crowding", "moved") if "pibt" in _planners()]
     setups += [("windowed", "moved")] if "windowed" in _planners() else []
     for planner, congestion in setups:
