@@ -115,9 +115,10 @@ def validate(cfg: DictConfig) -> None:
             or not all(isinstance(v, int) and not isinstance(v, bool) and v >= 2 for v in inter)
         ):
             raise NcaQdError(f"{name} must be two integers >= 2, got {inter!r}")
-    solver = OmegaConf.select(cfg, "levels.solver")
-    if solver is not None and solver not in ("auto", "exact", "sweep"):
-        raise NcaQdError(f"levels.solver must be auto, exact or sweep, got {solver!r}")
+    try:
+        solver_for(OmegaConf.select(cfg, "levels.solver"), (1, 1))
+    except ValueError as exc:
+        raise NcaQdError(str(exc)) from None
     if OmegaConf.select(cfg, "heldout.n_nca") is not None:  # runs from before NCA held-out mazes lack it
         number("heldout.n_nca", low=0, strict=False)
         if OmegaConf.select(cfg, "heldout.nca_iters") is not None:
@@ -173,24 +174,17 @@ def archive_elite_levels(cfg: DictConfig, shape: tuple[int, int], solver: str) -
     """``heldout.n_elites`` mazes grown at ``shape`` by generators of a maze QD run's result
     archive (``heldout.elites_from``): a seeded sample of its solvable elites, each run for
     :func:`heldout_nca_iters` iterations from the domain's seed; the unsolvable are left out."""
-    from nca_qd.domains import make_domain
+    from nca_qd.agent.transfer import load_maze_run
     from nca_qd.pipeline import generate, make_generator
-    from nca_qd.run_dir import load_archive, load_run_config
 
     run_dir = Path(str(cfg.heldout.elites_from))
-    if not (run_dir / "config.yaml").is_file():
-        raise NcaQdError(f"heldout.elites_from: {run_dir} is not a run directory (config.yaml missing)")
-    run_cfg = load_run_config(run_dir)
-    if not str(run_cfg.domain.name).startswith("maze"):
-        raise NcaQdError(f"heldout.elites_from: {run_dir} is a {run_cfg.domain.name} run, not a maze run")
-    archive = load_archive(run_dir, "result")
+    domain, archive = load_maze_run(run_dir, "heldout.elites_from")
     objective = np.asarray(archive["objective"])
     solvable = np.flatnonzero(np.isfinite(objective) & (objective > 0))
     if solvable.size == 0:
         raise NcaQdError(f"heldout.elites_from: {run_dir} holds no elite with a solvable maze")
     rng = np.random.default_rng(int(cfg.heldout.seed))
     cells = np.sort(rng.choice(solvable, min(int(cfg.heldout.n_elites), solvable.size), replace=False))
-    domain = make_domain(run_cfg.domain)
     regions = generate(
         domain,
         make_generator(domain),

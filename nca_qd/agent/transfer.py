@@ -327,17 +327,27 @@ def longest_path_elite(domain, gen, archive: Mapping[str, np.ndarray], chunk: in
     return int(top[np.lexsort((-np.concatenate(walls), -np.concatenate(length)))[0]])
 
 
-def own_nca_layouts(run_dir: str | Path, elite: int | None) -> tuple[dict[str, np.ndarray], int]:
-    """The run's chosen generator's bordered mazes at the training and evaluation sizes."""
+def load_maze_run(run_dir: str | Path, what: str = "") -> tuple[Any, dict[str, np.ndarray]]:
+    """``(domain, result archive)`` of a maze QD run directory; anything else is one
+    :class:`NcaQdError` (prefixed with ``what``, the setting that named the directory)."""
     from nca_qd.domains import make_domain
-    from nca_qd.pipeline import generate, make_generator
     from nca_qd.run_dir import load_archive, load_run_config
 
-    cfg = load_run_config(Path(run_dir))
-    if cfg.domain.name not in ("maze",) and not str(cfg.domain.name).startswith("maze"):
-        raise NcaQdError(f"{run_dir} is a {cfg.domain.name!r} run, not a maze run")
-    archive = load_archive(run_dir, "result")
-    domain = make_domain(cfg.domain)
+    prefix = f"{what}: " if what else ""
+    try:
+        cfg = load_run_config(Path(run_dir))
+    except NcaQdError as exc:
+        raise NcaQdError(f"{prefix}{exc}") from None
+    if not str(cfg.domain.name).startswith("maze"):
+        raise NcaQdError(f"{prefix}{run_dir} is a {cfg.domain.name!r} run, not a maze run")
+    return make_domain(cfg.domain), load_archive(run_dir, "result")
+
+
+def own_nca_layouts(run_dir: str | Path, elite: int | None) -> tuple[dict[str, np.ndarray], int]:
+    """The run's chosen generator's bordered mazes at the training and evaluation sizes."""
+    from nca_qd.pipeline import generate, make_generator
+
+    domain, archive = load_maze_run(run_dir)
     gen = make_generator(domain)
     if elite is None:
         cell = longest_path_elite(domain, gen, archive)
