@@ -17,6 +17,7 @@ from nca_qd.domains.maze import (
     double_sweep_path,
     horizon_for,
     longest_shortest_path,
+    maze_key,
     run_agent,
     solve_start_goal,
 )
@@ -325,7 +326,7 @@ def test_evaluator_is_deterministic_and_matches_run_agent(domain, batch, evaluat
         np.asarray(out.extras["episode_lengths"]), np.asarray(again.extras["episode_lengths"])
     )
     i = 2
-    key_i = jax.random.split(jax.random.PRNGKey(42), batch.shape[0])[i]
+    key_i = maze_key(jax.random.PRNGKey(42), i)
     res = run_agent(
         domain.assemble(batch[i]),
         out.extras["start"][i],
@@ -335,6 +336,14 @@ def test_evaluator_is_deterministic_and_matches_run_agent(domain, batch, evaluat
         episodes=50,
     )
     np.testing.assert_array_equal(res.lengths, np.asarray(out.extras["episode_lengths"][i]))
+
+
+def test_a_mazes_score_does_not_depend_on_the_batch_size(evaluated, batch):
+    ev, out = evaluated
+    head = ev(batch[:3], jax.random.PRNGKey(42))
+    for name in ("episode_lengths", "success_rate"):
+        np.testing.assert_array_equal(np.asarray(head.extras[name]), np.asarray(out.extras[name][:3]))
+    np.testing.assert_array_equal(np.asarray(head.measures), np.asarray(out.measures[:3]))
 
 
 def test_entropy_variant_and_shortest_path_kind(batch):

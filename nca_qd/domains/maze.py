@@ -215,6 +215,15 @@ def _run_fn(kind: str, episodes: int, horizon: int, record: bool):
     return jax.jit(partial(maze_agent.rollout, policy, episodes=episodes, horizon=horizon))
 
 
+def maze_key(key: jax.Array, index) -> jax.Array:
+    """The agent's key for maze ``index`` of an evaluator call with ``key``.
+
+    Folded in rather than split from ``key``, so a maze's episodes depend on its place in the
+    batch but not on the batch's size: a batch and its first rows score those rows alike.
+    """
+    return jax.random.fold_in(key, index)
+
+
 def run_agent(
     layout,
     start,
@@ -228,7 +237,7 @@ def run_agent(
     """Run ``episodes`` episodes of agent ``kind`` on one bordered layout ``[H, W]`` (any size).
 
     Same key derivation as the evaluator: maze ``i`` of an evaluator call with ``key`` equals
-    ``run_agent(..., key=jax.random.split(key, b)[i])``. ``horizon`` defaults to 2 x tiles.
+    ``run_agent(..., key=maze_key(key, i))``. ``horizon`` defaults to 2 x tiles.
     With ``record_path`` also returns episode 0's positions and directions (until the goal or
     the horizon).
     """
@@ -311,7 +320,7 @@ class MazeDomain(Domain):
             start = jnp.where(start >= 0, start + 1, start)
             goal = jnp.where(goal >= 0, goal + 1, goal)
             solvable = length > 0
-            keys = jax.random.split(key, b)
+            keys = jax.vmap(partial(maze_key, key))(jnp.arange(b))
             res = maze_agent.rollout_batch(
                 policy, layouts, start, goal, keys, episodes, horizon, solvable, count_visits=ancillary
             )
