@@ -74,9 +74,12 @@ def _raise_interrupt(signum, frame) -> None:
     raise KeyboardInterrupt
 
 
-def main_guard(body: Callable[[list[str]], int | None]) -> Callable[[], None]:
+RESUME_HINT = "the last checkpoint is intact; resume with resume=<run dir>"
+
+
+def main_guard(body: Callable[[list[str]], int | None], on_interrupt: str = "") -> Callable[[], None]:
     """Run ``body(argv)``; user errors print one line to stderr and exit 2, Ctrl-C (or
-    SIGTERM) exits 130."""
+    SIGTERM) exits 130 with ``on_interrupt`` (what was kept, how to go on) in its line."""
 
     def wrapped() -> None:
         logging.basicConfig(
@@ -92,7 +95,7 @@ def main_guard(body: Callable[[list[str]], int | None]) -> Callable[[], None]:
             print(f"error: {exc}", file=sys.stderr)
             sys.exit(EXIT_USAGE)
         except KeyboardInterrupt:
-            print("interrupted: the last checkpoint is intact; resume with resume=<run dir>", file=sys.stderr)
+            print(f"interrupted{': ' + on_interrupt if on_interrupt else ''}", file=sys.stderr)
             sys.exit(EXIT_INTERRUPTED)
         sys.exit(code or 0)
 

@@ -32,6 +32,8 @@ from omegaconf import OmegaConf
 from experiments.cli import compose_config, main_guard, take_domain
 from nca_qd.errors import NcaQdError
 
+INTERRUPTED = "finished exact runs are kept in <out>/exact_runs.jsonl; the same command goes on from them"
+
 
 def main(argv: list[str]) -> int:
     from nca_qd.evaluation import evaluate
@@ -47,4 +49,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    main_guard(main)()
+    main_guard(main, INTERRUPTED)()

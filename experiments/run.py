@@ -12,7 +12,7 @@ from __future__ import annotations
 import datetime
 from pathlib import Path
 
-from experiments.cli import compose_config, main_guard, merge_overrides
+from experiments.cli import RESUME_HINT, compose_config, main_guard, merge_overrides
 from nca_qd.errors import NcaQdError
 
 RUN_DIR_KEYS = ("hydra.run.dir=", "run_dir=")
@@ -60,4 +60,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    main_guard(main)()
+    main_guard(main, RESUME_HINT)()

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from omegaconf import OmegaConf
 
-from experiments.cli import compose_config, main_guard, merge_overrides
+from experiments.cli import RESUME_HINT, compose_config, main_guard, merge_overrides
 from nca_qd.errors import NcaQdError
 
 
@@ -56,4 +56,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    main_guard(main)()
+    main_guard(main, RESUME_HINT)()

@@ -543,3 +543,37 @@ def test_a_failed_repair_is_a_row_without_runs_and_old_outputs_go(tmp_path, maps
     assert {r["simulator"] for r in rows if r["which"] == "train"} == {"screen"}
     assert not stale.exists()
     assert "infeasible" in (out / "summary.md").read_text()
+
+
+def test_the_exact_run_record_keys_on_every_input_and_keeps_only_what_it_can_serve(tmp_path, monkeypatch):
+    from nca_qd.evaluation.store import ExactRunStore, run_key
+    from nca_qd.sim import rhcr
+
+    args = (HUMAN_9x14, "warehouse_even", 8, 40, 0, 10, 5, {"pbs_max_nodes": 2000})
+    key = run_key(*args)
+    assert run_key(*args) == key
+    changed = [
+        ([HUMAN_9x14[0][:-1] + "@", *HUMAN_9x14[1:]], *args[1:]),  # one tile
+        (*args[:4], 1, *args[5:]),  # the seed
+        (*args[:7], {"pbs_max_nodes": 3000}),  # the planner
+    ]
+    assert len({key, *(run_key(*a) for a in changed)}) == 4
+    monkeypatch.setattr(rhcr, "VERSION", rhcr.VERSION + 1)
+    assert run_key(*args) != key  # a revised simulator
+    monkeypatch.undo()
+
+    store = ExactRunStore(tmp_path)
+    tasks, visits = np.arange(40, dtype=np.int32) % 3, np.ones((9, 14), np.int64)
+    store.add(key, ev.SimOutcome("rhcr", 0, 0.5, True, 40, False, 1.0, None, tasks, visits))
+    store.add("bare", ev.SimOutcome("rhcr", 1, 0.25, False, 12, False, 1.0))
+    store.add("slow", ev.SimOutcome("rhcr", 2, timed_out=True))
+    store.add(key, ev.SimOutcome("rhcr", 0, 0.5, True, 40, False, 1.0))  # never replaces detail
+    again = ExactRunStore(tmp_path)  # as the next evaluation reads it
+    got = again.get(key, need_detail=True)
+    assert got is not None and (got.throughput, got.success, got.stop_time) == (0.5, True, 40)
+    np.testing.assert_array_equal(got.tasks_per_step, tasks)
+    np.testing.assert_array_equal(got.tile_visits, visits)
+    assert again.get("bare", need_detail=False).stop_time == 12
+    assert again.get("bare", need_detail=True) is None  # a request for tasks over time reruns it
+    assert again.get("slow", need_detail=False) is None  # a timed-out run is tried again
+    assert again.get("unknown", need_detail=False) is None

@@ -74,15 +74,17 @@ SETTINGS = [
 ]
 
 
-def run_evaluation(root: Path) -> Path:
-    """The tiny evaluation under ``root``; returns its output directory."""
+def run_evaluation(root: Path, out: Path | None = None) -> Path:
+    """The tiny evaluation under ``root`` (its maps and run made once), written to ``out``
+    (default ``root/evaluation``); returns the output directory."""
     maps = root / "maps"
-    (maps / "warehouse").mkdir(parents=True)
-    (maps / "warehouse" / "human_9x14.json").write_text(
-        json.dumps({"name": "human_9x14", "layout": HUMAN_9x14, "n_row": 9, "n_col": 14})
-    )
-    run_dir = make_run(root / "run", TINY_RUN)
-    out = root / "evaluation"
+    if not maps.exists():
+        (maps / "warehouse").mkdir(parents=True)
+        (maps / "warehouse" / "human_9x14.json").write_text(
+            json.dumps({"name": "human_9x14", "layout": HUMAN_9x14, "n_row": 9, "n_col": 14})
+        )
+    run_dir = root / "run" if (root / "run").exists() else make_run(root / "run", TINY_RUN)
+    out = out or root / "evaluation"
     with pytest.MonkeyPatch.context() as mp, contextlib.redirect_stdout(io.StringIO()):
         mp.setenv("NCA_QD_MAPS", str(maps))
         assert evaluate_cli.main([f"run_dir={run_dir}", f"out={out}", *SETTINGS]) == 0
@@ -115,13 +117,56 @@ def test_the_same_csv_files_are_written(evaluated):
     assert "summary.csv" in csv_files(GOLDEN) and "selection.csv" in csv_files(GOLDEN)
 
 
-@pytest.mark.parametrize("name", csv_files(GOLDEN) or ["summary.csv"])
-def test_every_csv_matches_its_golden_copy(evaluated, name):
+def assert_matches_golden(out: Path, name: str) -> None:
     want_cols, want = read(GOLDEN / name)
-    got_cols, got = read(evaluated / name)
+    got_cols, got = read(out / name)
     assert got_cols == want_cols, name
     assert len(got) == len(want), name
     compared = [c for c in want_cols if c not in TIMING_COLUMNS]
     for i, (g, w) in enumerate(zip(got, want)):
         diff = {c: (g[c], w[c]) for c in compared if g[c] != w[c]}
         assert not diff, f"{name} row {i + 2}: column: (got, golden) {diff}"
+
+
+@pytest.mark.parametrize("name", csv_files(GOLDEN) or ["summary.csv"])
+def test_every_csv_matches_its_golden_copy(evaluated, name):
+    assert_matches_golden(evaluated, name)
+
+
+def test_an_interrupted_evaluation_goes_on_from_its_recorded_exact_runs(evaluated, tmp_path, monkeypatch):
+    """Every exact run is recorded as it ends (exact_runs.jsonl). An evaluation interrupted
+    after two exact runs keeps those two; the same command then runs only the others (a line
+    cut short in the record is skipped) and writes the golden CSVs; a third runs none."""
+    from nca_qd.evaluation import runs as runs_module
+
+    recorded = (evaluated / "exact_runs.jsonl").read_text().splitlines()
+    _, rows = read(evaluated / "runs.csv")
+    exact = {(r["layout"], r["size"], r["n_agents"], r["seed"]) for r in rows if r["simulator"] == "rhcr"}
+    assert len(recorded) == len(exact) > 2
+    real, calls = runs_module.exact_run, []
+
+    def interrupted_after_two(*args):
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        calls.append(args)
+        return real(*args)
+
+    def counted(*args):
+        calls.append(args)
+        return real(*args)
+
+    out = tmp_path / "evaluation"
+    monkeypatch.setattr(runs_module, "exact_run", interrupted_after_two)
+    with pytest.raises(KeyboardInterrupt):
+        run_evaluation(evaluated.parent, out)
+    kept = (out / "exact_runs.jsonl").read_text().splitlines()
+    assert [json.loads(line)["key"] for line in kept] == [json.loads(line)["key"] for line in recorded[:2]]
+    with (out / "exact_runs.jsonl").open("a") as fh:  # a write cut short
+        fh.write(recorded[-1][:40])
+    monkeypatch.setattr(runs_module, "exact_run", counted)
+    for expected_calls in (len(recorded) - 2, 0):
+        calls.clear()
+        run_evaluation(evaluated.parent, out)
+        assert len(calls) == expected_calls
+        for name in csv_files(GOLDEN):
+            assert_matches_golden(out, name)

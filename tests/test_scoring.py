@@ -73,6 +73,10 @@ def test_local_backend_keeps_order_and_reports_failures(workers):
         assert out[0] == 0 and out[2] == 2
         assert isinstance(out[1], JobFailed) and "odd 1" in out[1].error
         assert map_jobs(be, _square, []) == []
+        seen: dict[int, object] = {}
+        out = map_jobs(be, _fail_on_odd, [(x,) for x in range(4)], on_result=seen.__setitem__)
+        assert sorted(seen) == [0, 1, 2, 3]  # every final result once, failures included
+        assert all(seen[i] == out[i] for i in (0, 2)) and isinstance(seen[1], JobFailed)
     finally:
         be.close()
 
@@ -85,6 +89,14 @@ def test_a_dead_worker_loses_no_returned_result_and_its_job_is_retried(tmp_path)
         be.close()
     assert out == [x + 100 for x in range(6)]
     assert (tmp_path / "died_3").exists()  # the worker did die
+    (tmp_path / "again").mkdir()
+    be = LocalBackend(2, retries=2)
+    seen: list[tuple[int, int]] = []
+    try:  # the retried job's result is reported once, when it finally arrives
+        be.map(_die_once, [str(tmp_path / "again")] * 6, range(6), on_result=lambda i, r: seen.append((i, r)))
+    finally:
+        be.close()
+    assert sorted(seen) == [(x, x + 100) for x in range(6)]
 
 
 def test_an_interrupt_stops_the_pool_without_waiting_for_running_jobs():

@@ -28,6 +28,8 @@ bottom as the evaluation's steps); one module per step, each usable on its own:
 * :mod:`.selection`: ``select.by=s_eval``, the generators chosen by a screening run at S_eval;
 * :mod:`.layouts`: the run's archive, the layouts generated, tiled, loaded and repaired;
 * :mod:`.runs`: the exact RHCR runs and the screened runs of every (layout, agent count);
+* :mod:`.store`: every exact run recorded as it ends (``exact_runs.jsonl``), reused by the next
+  evaluation into the same folder, so an interrupted one resumes;
 * :mod:`.stats`: the statistics of a set of runs;
 * :mod:`.tables`: the tables' rows (CSV, Markdown); :mod:`.plots`: the figures;
 * :mod:`.outputs`: every file written, and those an earlier evaluation left behind removed.
@@ -75,6 +77,7 @@ from nca_qd.evaluation.records import (
 from nca_qd.evaluation.runs import exact_run, merge_requests, screen_group, simulate_cells
 from nca_qd.evaluation.selection import Selection, select_scalable, write_selection
 from nca_qd.evaluation.stats import mean_se_ci, request_runs, run_stats
+from nca_qd.evaluation.store import ExactRunStore
 from nca_qd.evaluation.tables import LAYOUT_COLUMNS, STAT_COLUMNS, layout_record, markdown_table, write_csv
 
 log = logging.getLogger("nca_qd.evaluate")
@@ -155,6 +158,7 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
         requests = plan.requests(layouts)
         check_agents(layouts, requests, name, tiles)
         cells = merge_requests(requests)
+        store = ExactRunStore(out) if ecfg["exact"].get("reuse", True) else None
         if ecfg["screen"]["where"] == "rest":
             for c in cells.values():
                 if c.exact_runs > 0:
@@ -170,6 +174,7 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
             ecfg["exact"],
             ecfg["screen"],
             bool(ecfg["progress"]),
+            store,
         )
     finally:
         backend.close()
@@ -191,6 +196,7 @@ __all__ = [
     "SUPPORTED",
     "EvalLayout",
     "Evaluation",
+    "ExactRunStore",
     "Request",
     "Results",
     "Selection",

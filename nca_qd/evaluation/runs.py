@@ -2,8 +2,10 @@
 
 The requests are merged into one cell per (layout, agent count) (:func:`merge_requests`);
 :func:`simulate_cells` runs each cell's exact RHCR runs as backend jobs (:func:`exact_run`, in
-a background thread) while it screens the cells in this process, in vmapped batches of one
-shape and agent count (:func:`screen_group`). Every run comes back as a
+a background thread; runs recorded in the folder's
+:class:`~nca_qd.evaluation.store.ExactRunStore` are reused, and each new one is recorded as it
+ends) while it screens the cells in this process, in vmapped batches of one shape and agent
+count (:func:`screen_group`). Every run comes back as a
 :class:`~nca_qd.evaluation.records.SimOutcome`.
 """
 
@@ -19,6 +21,7 @@ import numpy as np
 from nca_qd.errors import NcaQdError
 from nca_qd.evaluation.records import EvalLayout, Request, Results, SimOutcome, format_value, size_str
 from nca_qd.evaluation.stats import run_stats
+from nca_qd.evaluation.store import ExactRunStore, run_key
 
 log = logging.getLogger("nca_qd.evaluate")
 
@@ -95,23 +98,34 @@ def simulate_cells(
     exact_cfg: Mapping[str, Any],
     screen_cfg: Mapping[str, Any],
     progress: bool = True,
+    store: ExactRunStore | None = None,
 ) -> Results:
     """Run every cell: exact runs as backend jobs (in a background thread, so they overlap
     the screening), screening runs batched by (shape, agent count) in this process.
-    Returns ``results[(layout, n_agents, simulator)]``: outcomes in seed order."""
+    With a ``store``, exact runs it holds are reused and every new one is recorded in it as it
+    finishes. Returns ``results[(layout, n_agents, simulator)]``: outcomes in seed order."""
     from concurrent.futures import ThreadPoolExecutor
 
     from tqdm import tqdm
 
     from nca_qd.io import array_to_rows
-    from nca_qd.scoring.backend import JobFailed, map_jobs
+    from nca_qd.scoring.backend import map_jobs
     from nca_qd.sim.rhcr import planner_options
 
     rows = {k: array_to_rows(v.layout, tiles) for k, v in layouts.items() if v.layout is not None}
     planner = planner_options(exact_cfg, "exact.")
-    jobs, slots = [], []
+    window, replan = int(exact_cfg.get("window", 10)), int(exact_cfg.get("replan", 5))
+    results: Results = {}
+    exact: dict[tuple[str, int], list[SimOutcome]] = {}  # added to results after the screen's
+    jobs, slots, run_keys = [], [], []
     for (key, n), c in cells.items():
         for i in range(c.exact_runs):
+            rk = run_key(rows[key], scenario, n, T, seed0 + i, window, replan, planner)
+            known = store.get(rk, c.detail) if store is not None else None
+            exact.setdefault((key, n), [])
+            if known is not None:
+                exact[(key, n)].append(known)
+                continue
             jobs.append(
                 (
                     rows[key],
@@ -120,19 +134,28 @@ def simulate_cells(
                     T,
                     seed0 + i,
                     exact_cfg.get("time_limit_s"),
-                    int(exact_cfg.get("window", 10)),
-                    int(exact_cfg.get("replan", 5)),
+                    window,
+                    replan,
                     c.detail,
                     planner,
                 )
             )
             slots.append((key, n))
-    results: Results = {}
+            run_keys.append(rk)
+    if store is not None:
+        reused = sum(c.exact_runs for c in cells.values()) - len(jobs)
+        if reused:
+            log.info("%d exact RHCR run(s) reused from %s", reused, store.path)
+
+    def record(i: int, out: Any) -> None:
+        if store is not None:
+            store.add(run_keys[i], _outcome(out, jobs[i][4]))
+
     with ThreadPoolExecutor(max_workers=1) as pool:
         future = None
         if jobs:
             log.info("%d exact RHCR run(s) (T=%d) submitted to %s", len(jobs), T, backend.describe())
-            future = pool.submit(map_jobs, backend, exact_run, jobs)
+            future = pool.submit(map_jobs, backend, exact_run, jobs, record)
         groups: dict[tuple[tuple[int, int], int], list[Request]] = {}
         for (key, n), c in cells.items():
             if c.screen_runs > 0:
@@ -154,13 +177,20 @@ def simulate_cells(
             if not future.done():
                 log.info("screening done; waiting for the exact runs")
             for (key, n), job, out in zip(slots, jobs, future.result()):
-                if isinstance(out, JobFailed):
-                    out = SimOutcome("rhcr", job[4], error=out.error)
-                results.setdefault((key, n, "rhcr"), []).append(out)
+                exact[(key, n)].append(_outcome(out, job[4]))
+    for (key, n), outs in exact.items():
+        results[(key, n, "rhcr")] = outs
     for k in results:
         results[k].sort(key=lambda o: o.seed)
         _log_cell(layouts[k[0]], k[1], k[2], results[k])
     return results
+
+
+def _outcome(out: Any, seed: int) -> SimOutcome:
+    """A backend job's result as a SimOutcome (a job that failed every attempt: its error)."""
+    from nca_qd.scoring.backend import JobFailed
+
+    return SimOutcome("rhcr", seed, error=out.error) if isinstance(out, JobFailed) else out
 
 
 def screen_group(

@@ -10,10 +10,12 @@
   cluster, so a user who outgrows one machine adds workers, not code. An unreachable
   scheduler is an error, unless ``fallback_local: true``, which warns and runs locally.
 
-Both return results in input order. A worker that dies loses nothing already returned: the
-local pool is rebuilt and only the unfinished jobs are resubmitted; Dask reschedules the jobs
-of a lost worker itself. A job that fails ``retries + 1`` times comes back as a
-:class:`JobFailed` in its slot, so the caller records it and goes on.
+Both return results in input order; ``map(..., on_result=f)`` also calls ``f(i, result)`` in
+the calling thread as each job's final result arrives (e.g. to record it before the rest end).
+A worker that dies loses nothing already returned: the local pool is rebuilt and only the
+unfinished jobs are resubmitted; Dask reschedules the jobs of a lost worker itself. A job that
+fails ``retries + 1`` times comes back as a :class:`JobFailed` in its slot, so the caller
+records it and goes on.
 """
 
 from __future__ import annotations
@@ -32,6 +34,8 @@ from typing import Any
 from nca_qd.errors import NcaQdError
 
 log = logging.getLogger(__name__)
+
+OnResult = Callable[[int, Any], None]
 
 
 @dataclass
@@ -76,10 +80,15 @@ class LocalBackend:
             self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"))
         return self._pool
 
-    def map(self, fn: Callable, *args: Sequence[Any]) -> list[Any]:
+    def map(self, fn: Callable, *args: Sequence[Any], on_result: OnResult | None = None) -> list[Any]:
         jobs = list(zip(*args))
         if self.workers == 0:
-            return [self._inline(fn, job) for job in jobs]
+            inline = []
+            for i, job in enumerate(jobs):
+                inline.append(self._inline(fn, job))
+                if on_result is not None:
+                    on_result(i, inline[-1])
+            return inline
         results: list[Any] = [None] * len(jobs)
         attempts = [0] * len(jobs)
         todo = list(range(len(jobs)))
@@ -100,12 +109,16 @@ class LocalBackend:
                             results[i] = JobFailed(f"worker died {attempts[i]} times: {exc}")
                         else:
                             todo.append(i)
+                            continue
                     except Exception as exc:  # noqa: BLE001 - a job's own error: retried, then kept
                         attempts[i] += 1
                         if attempts[i] > self.retries:
                             results[i] = JobFailed(f"{type(exc).__name__}: {exc}")
                         else:
                             todo.append(i)
+                            continue
+                    if on_result is not None:
+                        on_result(i, results[i])
             except KeyboardInterrupt:  # Ctrl-C or SIGTERM: stop now, not after the running jobs
                 self.abort()
                 raise
@@ -174,17 +187,23 @@ class DaskBackend:
                 f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
             ) from None
 
-    def map(self, fn: Callable, *args: Sequence[Any]) -> list[Any]:
+    def map(self, fn: Callable, *args: Sequence[Any], on_result: OnResult | None = None) -> list[Any]:
+        from distributed import as_completed as dask_completed
+
         jobs = list(zip(*args))
         if not jobs:
             return []
         futures = [self.client.submit(fn, *job, pure=False, retries=self.retries) for job in jobs]
-        results: list[Any] = []
-        for fut in futures:
+        index = {fut.key: i for i, fut in enumerate(futures)}
+        results: list[Any] = [None] * len(jobs)
+        for fut in dask_completed(futures):
+            i = index[fut.key]
             try:
-                results.append(fut.result())
+                results[i] = fut.result()
             except Exception as exc:  # noqa: BLE001 - failed every retry, or its worker kept dying
-                results.append(JobFailed(f"{type(exc).__name__}: {exc}"))
+                results[i] = JobFailed(f"{type(exc).__name__}: {exc}")
+            if on_result is not None:
+                on_result(i, results[i])
         return results
 
     def close(self) -> None:
@@ -216,9 +235,11 @@ def make_backend(cfg: Mapping[str, Any] | None) -> Backend:
     return LocalBackend(None if workers is None else int(workers), retries)
 
 
-def map_jobs(backend: Backend, fn: Callable, jobs: Iterable[tuple]) -> list[Any]:
-    """``backend.map`` over a list of argument tuples."""
+def map_jobs(
+    backend: Backend, fn: Callable, jobs: Iterable[tuple], on_result: OnResult | None = None
+) -> list[Any]:
+    """``backend.map`` over a list of argument tuples (``on_result``: see the module doc)."""
     jobs = list(jobs)
     if not jobs:
         return []
-    return backend.map(fn, *zip(*jobs))
+    return backend.map(fn, *zip(*jobs), on_result=on_result)

@@ -1,0 +1,166 @@
+"""A record of exact RHCR runs that outlives one evaluation: ``<out>/exact_runs.jsonl``.
+
+Exact runs at S_eval cost minutes each, so the paper's protocol (20 runs per layout at 1,400
+agents, T=5,000) may take more than one sitting. Every exact run is appended to this file the
+moment it finishes (one JSON line, flushed to disk), and a later evaluation into the same
+folder reuses every recorded run whose inputs are identical, so an interrupted evaluation
+(Ctrl-C, SIGTERM, a lost machine once the file is committed) loses at most the runs in flight.
+
+A run is keyed by a digest of everything that decides its outcome: the layout's rows, the
+scenario, agent count, T, seed, window, replan, the planner's options and the exact
+simulator's ``VERSION`` — so a repaired layout that differs by one tile, or a revised planner,
+never reuses an old run. Runs that timed out or failed are not reused (a new attempt may
+succeed); a run recorded without its per-step detail does not serve a request that needs it.
+A truncated last line (a write cut short) is skipped with a warning.
+"""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import json
+import logging
+import os
+import threading
+import zlib
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from nca_qd.evaluation.records import SimOutcome
+
+log = logging.getLogger("nca_qd.evaluate")
+
+FILENAME = "exact_runs.jsonl"
+
+
+def run_key(
+    rows: Sequence[str],
+    scenario: str,
+    n_agents: int,
+    T: int,
+    seed: int,
+    window: int,
+    replan: int,
+    planner: Mapping[str, Any] | None,
+) -> str:
+    """Digest of an exact run's inputs (with the simulator's version): equal keys, equal runs."""
+    from nca_qd.sim.rhcr import VERSION
+
+    spec = {
+        "rows": list(rows),
+        "scenario": scenario,
+        "n_agents": int(n_agents),
+        "T": int(T),
+        "seed": int(seed),
+        "window": int(window),
+        "replan": int(replan),
+        "planner": {k: planner[k] for k in sorted(planner or {})},
+        "rhcr_version": int(VERSION),
+    }
+    return hashlib.sha256(json.dumps(spec, sort_keys=True, default=str).encode()).hexdigest()[:32]
+
+
+def _pack(a: np.ndarray | None) -> dict[str, Any] | None:
+    if a is None:
+        return None
+    a = np.ascontiguousarray(a)
+    return {
+        "dtype": a.dtype.str,
+        "shape": list(a.shape),
+        "zlib_b64": base64.b64encode(zlib.compress(a.tobytes(), 6)).decode("ascii"),
+    }
+
+
+def _unpack(d: Mapping[str, Any] | None) -> np.ndarray | None:
+    if d is None:
+        return None
+    raw = zlib.decompress(base64.b64decode(d["zlib_b64"]))
+    return np.frombuffer(raw, dtype=np.dtype(d["dtype"])).reshape(d["shape"]).copy()
+
+
+class ExactRunStore:
+    """The runs recorded in one evaluation folder, loaded once; :meth:`add` appends."""
+
+    def __init__(self, out: Path):
+        self.path = Path(out) / FILENAME
+        self._runs: dict[str, dict[str, Any]] = {}
+        self._lock = threading.Lock()
+        self._open_line = False  # the file ends inside a line (a write cut short)
+        if self.path.is_file():
+            self._load()
+
+    def _load(self) -> None:
+        bad = 0
+        text = self.path.read_text(encoding="utf-8", errors="replace")
+        self._open_line = bool(text) and not text.endswith("\n")
+        for line in text.splitlines():
+            if not line.strip():
+                continue
+            try:
+                rec = json.loads(line)
+                key = str(rec["key"])
+            except (ValueError, KeyError, TypeError):
+                bad += 1
+                continue
+            self._runs[key] = rec
+        if bad:
+            log.warning("%s: %d unreadable line(s) skipped (a write cut short?)", self.path, bad)
+        if self._runs:
+            log.info("%s: %d recorded exact run(s)", self.path, len(self._runs))
+
+    def __len__(self) -> int:
+        return len(self._runs)
+
+    def get(self, key: str, need_detail: bool) -> SimOutcome | None:
+        """The recorded run for ``key`` if it completed (and kept its detail when needed)."""
+        rec = self._runs.get(key)
+        if rec is None or rec.get("timed_out") or rec.get("error"):
+            return None
+        if need_detail and not rec.get("detail"):
+            return None
+        return SimOutcome(
+            "rhcr",
+            int(rec["seed"]),
+            float(rec["throughput"]),
+            bool(rec["success"]),
+            int(rec["stop_time"]),
+            False,
+            float(rec["seconds"]),
+            None,
+            _unpack(rec.get("tasks_per_step")),
+            _unpack(rec.get("tile_visits")),
+        )
+
+    def add(self, key: str, outcome: SimOutcome) -> None:
+        """Append one finished run (flushed and synced, so a crash keeps it)."""
+        detail = outcome.tasks_per_step is not None and outcome.tile_visits is not None
+        rec = {
+            "key": key,
+            "seed": int(outcome.seed),
+            "throughput": float(outcome.throughput),
+            "success": bool(outcome.success),
+            "stop_time": int(outcome.stop_time),
+            "timed_out": bool(outcome.timed_out),
+            "seconds": round(float(outcome.seconds), 3),
+            "error": outcome.error,
+            "detail": detail,
+            "tasks_per_step": _pack(outcome.tasks_per_step) if detail else None,
+            "tile_visits": _pack(outcome.tile_visits) if detail else None,
+        }
+        line = json.dumps(rec) + "\n"
+        with self._lock:
+            old = self._runs.get(key)
+            if old is not None and old.get("detail") and not detail and not old.get("error"):
+                return  # never replace a detailed record by a bare one
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            with self.path.open("a", encoding="utf-8") as fh:
+                if self._open_line:  # end the cut line, so this record stands on its own
+                    fh.write("\n")
+                    self._open_line = False
+                fh.write(line)
+                fh.flush()
+                os.fsync(fh.fileno())
+            self._runs[key] = rec
