@@ -205,7 +205,7 @@ def test_ctrl_c_leaves_a_resumable_checkpoint(tmp_path):
 def test_sigterm_stops_like_ctrl_c(capsys):
     """SIGTERM (a scheduler's or a session's end) becomes the KeyboardInterrupt that makes a run
     write its checkpoint (the test above) and exit 130 with the resume hint."""
-    from experiments.cli import main_guard
+    from experiments.cli import RESUME_HINT, main_guard
 
     reached = []
 
@@ -221,7 +221,7 @@ def test_sigterm_stops_like_ctrl_c(capsys):
     old = signal.getsignal(signal.SIGTERM)
     try:
         with pytest.raises(SystemExit) as exc:
-            main_guard(body)()
+            main_guard(body, RESUME_HINT)()
     finally:
         signal.signal(signal.SIGTERM, old)
     assert exc.value.code == 130 and reached == ["checkpoint here"]
