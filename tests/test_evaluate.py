@@ -577,3 +577,42 @@ def test_the_exact_run_record_keys_on_every_input_and_keeps_only_what_it_can_ser
     assert again.get("bare", need_detail=True) is None  # a request for tasks over time reruns it
     assert again.get("slow", need_detail=False) is None  # a timed-out run is tried again
     assert again.get("unknown", need_detail=False) is None
+
+
+def test_ctrl_c_during_the_screen_stops_the_exact_runs_at_once(monkeypatch):
+    """The exact runs go on in a background thread while the main thread screens; Ctrl-C in
+    the main thread aborts the backend (the runs stop now, not when they end) and re-raises."""
+    import threading
+
+    from nca_qd.evaluation import runs as runs_module
+    from nca_qd.io import rows_to_array
+    from nca_qd.layouts.warehouse import TILES
+
+    class WaitsForAbort:
+        def __init__(self):
+            self.aborted = threading.Event()
+
+        def describe(self):
+            return "a backend that runs until aborted"
+
+        def map(self, fn, *args, on_result=None):
+            if not self.aborted.wait(30):
+                raise AssertionError("never aborted")
+            raise KeyboardInterrupt
+
+        def abort(self):
+            self.aborted.set()
+
+    def screen_interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(runs_module, "screen_group", screen_interrupted)
+    layout = rows_to_array(HUMAN_9x14, TILES)
+    lay = ev.EvalLayout("human@9x14", "human", "human", "9x14", "train", layout)
+    cells = {("human@9x14", 4): ev.Request("cell", "human@9x14", 4, 1, 1)}
+    backend = WaitsForAbort()
+    with pytest.raises(KeyboardInterrupt):
+        runs_module.simulate_cells(
+            cells, {lay.key: lay}, "warehouse_even", TILES, 20, 0, backend, {}, {}, progress=False
+        )
+    assert backend.aborted.is_set()

@@ -548,3 +548,30 @@ def test_bad_eval_settings_get_one_line_and_exit_2(args, message, tmp_path):
     assert res.returncode == 2
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and message in lines[0], res.stderr
+
+
+def test_an_abort_from_another_thread_ends_a_running_map_without_resubmitting():
+    """The evaluation maps its exact runs in a background thread; Ctrl-C reaches the main
+    thread, which aborts the backend: the map must end at once with KeyboardInterrupt rather
+    than take the killed workers for dead ones and resubmit their jobs."""
+    import threading
+
+    be = LocalBackend(2, retries=2)
+    raised: list[BaseException] = []
+
+    def mapping():
+        try:
+            be.map(time.sleep, [60.0] * 4)
+        except BaseException as exc:  # noqa: BLE001 - what the thread ended with
+            raised.append(exc)
+
+    thread = threading.Thread(target=mapping)
+    thread.start()
+    time.sleep(2.0)  # the jobs are running
+    t0 = time.perf_counter()
+    be.abort()
+    thread.join(timeout=20)
+    assert not thread.is_alive() and time.perf_counter() - t0 < 15
+    assert len(raised) == 1 and isinstance(raised[0], KeyboardInterrupt)
+    assert be._pool is None  # no new pool was started for a retry
+    be.close()

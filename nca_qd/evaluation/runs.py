@@ -106,8 +106,6 @@ def simulate_cells(
     finishes. Returns ``results[(layout, n_agents, simulator)]``: outcomes in seed order."""
     from concurrent.futures import ThreadPoolExecutor
 
-    from tqdm import tqdm
-
     from nca_qd.io import array_to_rows
     from nca_qd.scoring.backend import map_jobs
     from nca_qd.sim.rhcr import planner_options
@@ -156,34 +154,57 @@ def simulate_cells(
         if jobs:
             log.info("%d exact RHCR run(s) (T=%d) submitted to %s", len(jobs), T, backend.describe())
             future = pool.submit(map_jobs, backend, exact_run, jobs, record)
-        groups: dict[tuple[tuple[int, int], int], list[Request]] = {}
-        for (key, n), c in cells.items():
-            if c.screen_runs > 0:
-                groups.setdefault((layouts[key].layout.shape, n), []).append(c)
-        bar = tqdm(
-            total=sum(len(g) for g in groups.values()),
-            disable=not progress,
-            desc="screen",
-            unit="cell",
-            dynamic_ncols=True,
-        )
-        for (shape, n), group in sorted(groups.items(), key=lambda kv: (kv[0][0], kv[0][1])):
-            bar.set_postfix(size=size_str(shape), agents=n)
-            for c, outs in zip(group, screen_group(group, rows, scenario, n, T, seed0, screen_cfg)):
-                results[(c.layout, n, "screen")] = outs
-            bar.update(len(group))
-        bar.close()
-        if future is not None:
-            if not future.done():
-                log.info("screening done; waiting for the exact runs")
-            for (key, n), job, out in zip(slots, jobs, future.result()):
-                exact[(key, n)].append(_outcome(out, job[4]))
+        try:
+            _screen_cells(cells, layouts, rows, scenario, T, seed0, screen_cfg, progress, results)
+            if future is not None:
+                if not future.done():
+                    log.info("screening done; waiting for the exact runs")
+                for (key, n), job, out in zip(slots, jobs, future.result()):
+                    exact[(key, n)].append(_outcome(out, job[4]))
+        except KeyboardInterrupt:  # Ctrl-C / SIGTERM: stop the exact runs now, not when they end
+            abort = getattr(backend, "abort", None)
+            if abort is not None:
+                abort()
+            raise
     for (key, n), outs in exact.items():
         results[(key, n, "rhcr")] = outs
     for k in results:
         results[k].sort(key=lambda o: o.seed)
         _log_cell(layouts[k[0]], k[1], k[2], results[k])
     return results
+
+
+def _screen_cells(
+    cells: Mapping[tuple[str, int], Request],
+    layouts: Mapping[str, EvalLayout],
+    rows: Mapping[str, list[str]],
+    scenario: str,
+    T: int,
+    seed0: int,
+    screen_cfg: Mapping[str, Any],
+    progress: bool,
+    results: Results,
+) -> None:
+    """Every cell's screening runs, batched by (shape, agent count), into ``results``."""
+    from tqdm import tqdm
+
+    groups: dict[tuple[tuple[int, int], int], list[Request]] = {}
+    for (key, n), c in cells.items():
+        if c.screen_runs > 0:
+            groups.setdefault((layouts[key].layout.shape, n), []).append(c)
+    bar = tqdm(
+        total=sum(len(g) for g in groups.values()),
+        disable=not progress,
+        desc="screen",
+        unit="cell",
+        dynamic_ncols=True,
+    )
+    for (shape, n), group in sorted(groups.items(), key=lambda kv: (kv[0][0], kv[0][1])):
+        bar.set_postfix(size=size_str(shape), agents=n)
+        for c, outs in zip(group, screen_group(group, rows, scenario, n, T, seed0, screen_cfg)):
+            results[(c.layout, n, "screen")] = outs
+        bar.update(len(group))
+    bar.close()
 
 
 def _outcome(out: Any, seed: int) -> SimOutcome:

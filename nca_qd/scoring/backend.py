@@ -74,6 +74,7 @@ class LocalBackend:
         self.workers = available_cpus() if workers is None else int(workers)
         self.retries = int(retries)
         self._pool: ProcessPoolExecutor | None = None
+        self._aborted = False  # set by abort(), e.g. from the main thread while map() runs in another
 
     def _executor(self) -> ProcessPoolExecutor:
         if self._pool is None:
@@ -92,6 +93,7 @@ class LocalBackend:
         results: list[Any] = [None] * len(jobs)
         attempts = [0] * len(jobs)
         todo = list(range(len(jobs)))
+        self._aborted = False
         while todo:
             pool = self._executor()
             futures = {pool.submit(fn, *jobs[i]): i for i in todo}
@@ -99,6 +101,8 @@ class LocalBackend:
             broken = False
             try:
                 for fut in as_completed(futures):
+                    if self._aborted:  # aborted from another thread: no job is resubmitted
+                        raise KeyboardInterrupt
                     i = futures[fut]
                     try:
                         results[i] = fut.result()
@@ -145,7 +149,10 @@ class LocalBackend:
     def abort(self) -> None:
         """Drop the pool at once: queued jobs are cancelled and running workers terminated
         (their jobs' results would be discarded anyway; an interrupted run resumes from its
-        checkpoint). Without this, SIGTERM would wait for minutes-long RHCR runs to finish."""
+        checkpoint). Without this, SIGTERM would wait for minutes-long RHCR runs to finish.
+        Called from another thread while :meth:`map` runs, it makes that map raise
+        KeyboardInterrupt instead of resubmitting the killed jobs."""
+        self._aborted = True
         if self._pool is None:
             return
         pool, self._pool = self._pool, None
@@ -179,6 +186,8 @@ class DaskBackend:
                 "eval.scheduler needs Dask distributed: pip install 'nca-qd[cluster]' (or dask distributed)"
             ) from None
         self.scheduler, self.retries = scheduler, int(retries)
+        self._futures: list[Any] = []
+        self._aborted = False
         try:
             self.client = Client(scheduler, timeout=f"{connect_timeout_s}s")
         except (OSError, TimeoutError, ValueError) as exc:
@@ -193,10 +202,14 @@ class DaskBackend:
         jobs = list(zip(*args))
         if not jobs:
             return []
+        self._aborted = False
         futures = [self.client.submit(fn, *job, pure=False, retries=self.retries) for job in jobs]
+        self._futures = futures
         index = {fut.key: i for i, fut in enumerate(futures)}
         results: list[Any] = [None] * len(jobs)
         for fut in dask_completed(futures):
+            if self._aborted:
+                raise KeyboardInterrupt
             i = index[fut.key]
             try:
                 results[i] = fut.result()
@@ -205,6 +218,13 @@ class DaskBackend:
             if on_result is not None:
                 on_result(i, results[i])
         return results
+
+    def abort(self) -> None:
+        """Cancel the jobs of the running :meth:`map` (called from another thread, it makes
+        that map raise KeyboardInterrupt)."""
+        self._aborted = True
+        if self._futures:
+            self.client.cancel(self._futures)
 
     def close(self) -> None:
         self.client.close()
