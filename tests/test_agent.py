@@ -440,6 +440,28 @@ def test_train_agent_resumes_from_its_compressed_checkpoint_to_the_same_end(tmp_
 
     assert len(rows(whole)) == 4 and rows(whole) == rows(part)
 
+    # Shipping a run that started from a shipped agent extends that agent's training record,
+    # also when it ships over the very files it started from (and ships twice).
+    from nca_qd.agent.train import init_from_steps
+
+    ship = tmp_path / "ship"
+    child = tmp_path / "child"
+    for argv in (
+        [f"resume={part}", "ship_only=true", f"ship_dir={ship}"],
+        [f"run_dir={child}", *tiny, f"init_from={ship}/maze_agent.msgpack", "total_env_steps=256"],
+        [f"resume={child}", "ship=true", f"ship_dir={ship}"],
+        [f"resume={child}", "ship_only=true", f"ship_dir={ship}"],
+    ):
+        code, _, err = run_main("experiments.train_agent", argv, monkeypatch, capsys)
+        assert code == 0, err
+    meta = json.loads((ship / "maze_agent.json").read_text())
+    first, second = meta["lineage"]
+    assert first["run"] == "part" and second["run"] == "child"
+    e1, e2 = init_from_steps(part), init_from_steps(child)  # steps behind each run's best
+    assert first["env_steps"] == e1 and second["env_steps"] == e2 == 256
+    assert meta["init_from_env_steps"] == e1 and meta["total_env_steps"] == e1 + e2
+    assert second["device"].startswith("cpu")
+
 
 def fake_maze_run(path):
     """A maze QD run directory holding one random generator (what maze_transfer reads)."""

@@ -6,9 +6,10 @@ The run directory holds ``config.yaml``, ``checkpoint.msgpack`` (the whole
 enough to commit as a training leg's snapshot), ``best.msgpack`` (the parameters with the best
 held-out success) and ``metrics.csv``: per update ``update, env_steps, wall_seconds,
 steps_per_second, mean_return, train_success`` (episodes of the training levels), the losses, the
-level sampler's figures and, every ``heldout.every_updates``, ``heldout_success`` /
-``heldout_length`` on the fixed held-out set (full horizon). Deterministic given ``seed``; a resumed
-run continues from its checkpoint.
+level sampler's figures, every ``heldout.every_updates`` ``heldout_success`` / ``heldout_length`` on
+the fixed held-out set (full horizon), and the device. Deterministic given ``seed``; a resumed run
+continues from its checkpoint. A run started from a shipped agent keeps that agent's record
+(``init_from.json``), so that shipping it extends the agent's lineage and training budget.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from __future__ import annotations
 import csv
 import datetime
 import io
+import json
 import logging
 import time
 from pathlib import Path
@@ -29,7 +31,7 @@ from omegaconf import DictConfig, OmegaConf
 from nca_qd.agent.levels import Levels, border, nca_levels, random_levels, solve, solver_for
 from nca_qd.agent.network import make_net, n_params
 from nca_qd.agent.ppo import Trainer, TrainState, make_heldout_eval
-from nca_qd.agent.shipped import save_agent
+from nca_qd.agent.shipped import META_FILE, WEIGHTS_FILE, save_agent
 from nca_qd.errors import NcaQdError
 from nca_qd.io import atomic_write_text, load_pytree, reference_maps_dir, save_pytree
 
@@ -37,6 +39,7 @@ log = logging.getLogger("nca_qd.agent")
 
 CONFIG_FILE, METRICS_FILE = "config.yaml", "metrics.csv"
 CHECKPOINT_FILE, BEST_FILE = "checkpoint.msgpack", "best.msgpack"
+PRIOR_FILE = "init_from.json"  # the record of the shipped agent a run started from
 COLUMNS = [
     "update",
     "env_steps",
@@ -57,6 +60,7 @@ COLUMNS = [
     "level_score",
     "heldout_success",
     "heldout_length",
+    "device",
 ]
 
 
@@ -275,8 +279,12 @@ def resolve_params_file(path: str | Path) -> Path:
 
 
 def init_from_steps(path: str | Path | None) -> int | None:
-    """Environment steps behind an ``init_from`` run directory's best parameters (its metrics:
-    the last row with the highest held-out success, as training keeps it), else None."""
+    """Environment steps behind ``init_from`` parameters: a shipped agent's total (its
+    ``maze_agent.json``), or a run directory's best row (the last with the highest held-out
+    success, as training keeps it); None when unknown."""
+    prior = shipped_record(path)
+    if prior is not None:
+        return int(prior.get("total_env_steps", prior.get("env_steps", 0)))
     if not path or not (Path(path) / METRICS_FILE).is_file():
         return None
     with open(Path(path) / METRICS_FILE) as fh:
@@ -285,6 +293,38 @@ def init_from_steps(path: str | Path | None) -> int | None:
         return None
     best = max(float(r["heldout_success"]) for r in rows)
     return int([r for r in rows if float(r["heldout_success"]) == best][-1]["env_steps"])
+
+
+def shipped_record(path: str | Path | None) -> dict[str, Any] | None:
+    """The ``maze_agent.json`` beside ``init_from`` when it names a shipped agent's weights (or
+    its directory), else None: the record a new agent trained from it extends."""
+    if not path:
+        return None
+    p = Path(path)
+    d = p if p.is_dir() else p.parent
+    if p.is_dir() and not (d / WEIGHTS_FILE).is_file() or not p.is_dir() and p.name != WEIGHTS_FILE:
+        return None
+    meta = d / META_FILE
+    if not meta.is_file():
+        return None
+    record: dict[str, Any] = json.loads(meta.read_text())
+    return record
+
+
+def lineage(prior: dict[str, Any] | None) -> list[dict[str, Any]]:
+    """The training runs behind a shipped agent, oldest first (one entry if it kept no lineage)."""
+    if prior is None:
+        return []
+    if prior.get("lineage"):
+        return list(prior["lineage"])
+    keep = ("env_steps", "updates", "wall_seconds", "heldout_success", "date", "device")
+    return [{k: prior[k] for k in keep if k in prior}]
+
+
+def device_name() -> str:
+    """The accelerator (or CPU) training ran on, as JAX names it."""
+    dev = jax.devices()[0]
+    return f"{dev.platform}: {getattr(dev, 'device_kind', '?')} (x{jax.device_count()})"
 
 
 class AgentRun:
@@ -357,6 +397,10 @@ class AgentRun:
                 params = load_pytree(resolve_params_file(cfg.init_from), tree["state"].params)
                 tree["state"] = tree["state"]._replace(params=params, opt_state=self.trainer.tx.init(params))
                 log.info("parameters initialised from %s", cfg.init_from)
+                prior = shipped_record(cfg.init_from)
+                if prior is not None:  # kept: the shipped files may be replaced before this run ships
+                    self.run_dir.mkdir(parents=True, exist_ok=True)
+                    atomic_write_text(self.run_dir / PRIOR_FILE, json.dumps(prior, indent=1) + "\n")
         state: TrainState = tree["state"]
         spu = tr.steps_per_update
         n_updates = -(-int(cfg.total_env_steps) // spu)
@@ -372,6 +416,7 @@ class AgentRun:
             done,
             n_updates,
         )
+        device = device_name()
         t_session = time.perf_counter()
         wall0 = float(tree["wall_seconds"])
         bar = tqdm(
@@ -400,6 +445,7 @@ class AgentRun:
                     **{k: round(float(v), 6) for k, v in m.items()},
                     "heldout_success": "",
                     "heldout_length": "",
+                    "device": device,
                 }
                 if u % int(cfg.heldout.every_updates) == 0 or u == n_updates:
                     succ, length = self.heldout(state.params, u)
@@ -451,6 +497,27 @@ class AgentRun:
             if r.get("heldout_success") not in (None, "")
         ]
         sps = [float(r["steps_per_second"]) for r in rows if r.get("steps_per_second")]
+        prior_file = self.run_dir / PRIOR_FILE
+        prior = json.loads(prior_file.read_text()) if prior_file.is_file() else None
+        prior = prior if prior is not None else shipped_record(self.cfg.get("init_from"))
+        cfg, wall = self.cfg, float(at_best["wall_seconds"]) if at_best else float(tree["wall_seconds"])
+        this_run = {
+            "run": self.run_dir.name,
+            "init_from": cfg.get("init_from"),
+            "env_steps": best_u * self.trainer.steps_per_update,
+            "updates": best_u,
+            "wall_seconds": wall,
+            "heldout_success": float(tree["best_success"]),
+            "levels": f"interior {list(cfg.interior)} (new levels from {cfg.levels.min_interior}), "
+            f"horizon {cfg.horizon}, {cfg.n_envs} envs; held out: {len(self.level_names)} mazes, "
+            f"interior {list(heldout_interior(cfg))}",
+            "device": "; ".join(
+                sorted({r["device"] for r in rows if r.get("device") and int(r["update"]) <= best_u})
+            )
+            or "not recorded",
+            "median_steps_per_second": float(np.median(sps)) if sps else None,
+        }
+        runs = [*lineage(prior), this_run]
         meta = {
             "network": OmegaConf.to_container(self.cfg.network),
             "n_params": n_params(self.best_params()),
@@ -458,10 +525,14 @@ class AgentRun:
             "config": OmegaConf.to_container(self.cfg),
             "env_steps": best_u * self.trainer.steps_per_update,
             "init_from": self.cfg.get("init_from"),
-            "init_from_env_steps": init_from_steps(self.cfg.get("init_from")),
+            "init_from_env_steps": (
+                int(prior.get("total_env_steps", prior.get("env_steps", 0)))
+                if prior is not None
+                else init_from_steps(self.cfg.get("init_from"))
+            ),
             "updates": best_u,
             "env_steps_run": int(tree["state"].update) * self.trainer.steps_per_update,
-            "wall_seconds": float(at_best["wall_seconds"]) if at_best else float(tree["wall_seconds"]),
+            "wall_seconds": wall,
             "wall_seconds_run": float(tree["wall_seconds"]),
             "median_steps_per_second": float(np.median(sps)) if sps else None,
             "heldout_success": float(tree["best_success"]),
@@ -472,6 +543,10 @@ class AgentRun:
                 "horizon": self.eval_horizon,
             },
             "heldout_curve": curve,
+            "device": this_run["device"],
+            "lineage": runs,
+            "total_env_steps": int(sum(int(r.get("env_steps", 0)) for r in runs)),
+            "total_wall_seconds": round(sum(float(r.get("wall_seconds", 0)) for r in runs), 1),
             "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         }
         return save_agent(self.best_params(), meta, directory)
