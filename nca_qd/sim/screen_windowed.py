@@ -52,6 +52,7 @@ the screen's default.
 
 from __future__ import annotations
 
+import functools
 import math
 
 from nca_qd.sim.screen import DENSITY_K, WINDOW, LayoutArrays, _draw_goal, _hash, _initial_agents, _jax
@@ -430,6 +431,22 @@ def run_batch(
     return res
 
 
+def _pad_to(n: int, step: int) -> int:
+    return -(-n // step) * step
+
+
+@functools.cache
+def _plan_window_program(n_agents: int, window: int):
+    """One jitted planning call per (agents, window): the layout and its distance table are
+    arguments, so that calls on maps padded to the same shape share one compilation."""
+    jax, _ = _jax()
+
+    def call(lay, dist, pos, goal, goal2, drem, order, salt):
+        return _planner(lay, dist, n_agents, window)(pos, goal, goal2, drem, 0, order, salt)
+
+    return jax.jit(call)
+
+
 def plan_window(
     traversable, starts, goals, order=None, window: int = WINDOW, seed: int = 0, next_goals=None, dwell=None
 ):
@@ -437,19 +454,25 @@ def plan_window(
     with goals ``goals`` (row, col), planned in ``order`` (default: index order); after its goal
     (and ``dwell`` steps standing on it, default 0) each heads for ``next_goals`` (default: the
     same goal). Returns
-    (paths ``[N, w+1, 2]`` as (row, col), stuck ``[N]``: the agents that found no path)."""
+    (paths ``[N, w+1, 2]`` as (row, col), stuck ``[N]``: the agents that found no path).
+    The map is padded with walls to multiples of 32 and the goal list to multiples of 8, so that
+    small maps share one compiled program; only random tie-breaks (hashed from cell numbers) can
+    differ from an unpadded call."""
     import numpy as np
 
     jax, jnp = _jax()
     from nca_qd.sim.screen import distance_table
 
-    trav = np.asarray(traversable, bool)
+    trav0 = np.asarray(traversable, bool)
+    trav = np.zeros((_pad_to(trav0.shape[0], 32), _pad_to(trav0.shape[1], 32)), bool)
+    trav[: trav0.shape[0], : trav0.shape[1]] = trav0
     H, W = trav.shape
     N = len(starts)
     pos = np.array([r * W + c for r, c in starts], np.int32)
     cells = np.array([r * W + c for r, c in goals], np.int32)
     nxt = np.array([r * W + c for r, c in (goals if next_goals is None else next_goals)], np.int32)
     uniq, inv = np.unique(np.concatenate([cells, nxt]), return_inverse=True)
+    uniq = np.concatenate([uniq, np.full(_pad_to(len(uniq), 8) - len(uniq), uniq[-1])])
     goal, goal2 = inv[:N], inv[N:]
     lay = LayoutArrays(
         trav[None],
@@ -461,11 +484,11 @@ def plan_window(
     )
     lay_j = LayoutArrays(*(jnp.asarray(x) for x in lay))
     dist = distance_table(lay_j.traversable[0], lay_j.goal_cells[0])[None]
-    plan_call = _planner(lay_j, dist, N, window)
     order = np.arange(N, dtype=np.int32) if order is None else np.asarray(order, np.int32)
     drem = jnp.asarray(np.zeros(N) if dwell is None else np.asarray(dwell), jnp.int32)
     g, g2 = jnp.asarray(goal.astype(np.int32)), jnp.asarray(goal2.astype(np.int32))
-    paths, stuck = jax.jit(plan_call)(jnp.asarray(pos), g, g2, drem, 0, jnp.asarray(order), _hash(seed, 9))
+    program = _plan_window_program(N, int(window))
+    paths, stuck = program(lay_j, dist, jnp.asarray(pos), g, g2, drem, jnp.asarray(order), _hash(seed, 9))
     paths = np.asarray(paths)
     return np.stack([paths // W, paths % W], axis=-1), np.asarray(stuck)
 
