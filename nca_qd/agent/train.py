@@ -284,7 +284,7 @@ def init_from_steps(path: str | Path | None) -> int | None:
     success, as training keeps it); None when unknown."""
     prior = shipped_record(path)
     if prior is not None:
-        return int(prior.get("total_env_steps", prior.get("env_steps", 0)))
+        return recorded_steps(prior)
     if not path or not (Path(path) / METRICS_FILE).is_file():
         return None
     with open(Path(path) / METRICS_FILE) as fh:
@@ -300,15 +300,17 @@ def shipped_record(path: str | Path | None) -> dict[str, Any] | None:
     its directory), else None: the record a new agent trained from it extends."""
     if not path:
         return None
-    p = Path(path)
-    d = p if p.is_dir() else p.parent
-    if p.is_dir() and not (d / WEIGHTS_FILE).is_file() or not p.is_dir() and p.name != WEIGHTS_FILE:
-        return None
-    meta = d / META_FILE
-    if not meta.is_file():
+    weights = Path(path) / WEIGHTS_FILE if Path(path).is_dir() else Path(path)
+    meta = weights.parent / META_FILE
+    if weights.name != WEIGHTS_FILE or not weights.is_file() or not meta.is_file():
         return None
     record: dict[str, Any] = json.loads(meta.read_text())
     return record
+
+
+def recorded_steps(record: dict[str, Any]) -> int:
+    """Environment steps behind a shipped agent, all its training runs together."""
+    return int(record.get("total_env_steps", record.get("env_steps", 0)))
 
 
 def lineage(prior: dict[str, Any] | None) -> list[dict[str, Any]]:
@@ -523,19 +525,13 @@ class AgentRun:
             "n_params": n_params(self.best_params()),
             "trained_with": "python -m experiments.train_agent",
             "config": OmegaConf.to_container(self.cfg),
-            "env_steps": best_u * self.trainer.steps_per_update,
-            "init_from": self.cfg.get("init_from"),
+            **{k: this_run[k] for k in ("env_steps", "init_from", "updates", "wall_seconds")},
             "init_from_env_steps": (
-                int(prior.get("total_env_steps", prior.get("env_steps", 0)))
-                if prior is not None
-                else init_from_steps(self.cfg.get("init_from"))
+                recorded_steps(prior) if prior is not None else init_from_steps(cfg.get("init_from"))
             ),
-            "updates": best_u,
             "env_steps_run": int(tree["state"].update) * self.trainer.steps_per_update,
-            "wall_seconds": wall,
             "wall_seconds_run": float(tree["wall_seconds"]),
-            "median_steps_per_second": float(np.median(sps)) if sps else None,
-            "heldout_success": float(tree["best_success"]),
+            **{k: this_run[k] for k in ("median_steps_per_second", "heldout_success")},
             "heldout": {
                 "mazes": len(self.level_names),
                 "names": self.level_names[-1:],
