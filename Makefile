@@ -27,8 +27,13 @@ lint: $(STAMP)
 	$(PY) -m ruff format --check nca_qd experiments tests benchmarks
 	$(PY) -m mypy
 
+# Test files run in parallel worker processes (pytest-xdist), one file per worker at a time so
+# that a file's shared compiled programs and fixtures stay in one process; the workers share the
+# session's persistent JAX compilation cache (tests/conftest.py). TEST_WORKERS=1 runs serially.
+TEST_WORKERS ?= $(shell n=$$(nproc 2>/dev/null || echo 2); [ $$n -gt 4 ] && n=4; echo $$n)
+
 test: lint
-	$(PY) -m pytest tests
+	$(PY) -m pytest tests $(if $(filter 1,$(TEST_WORKERS)),,-n $(TEST_WORKERS) --dist loadfile)
 
 run: $(STAMP)
 	$(PY) -m experiments.run domain=maze

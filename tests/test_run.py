@@ -184,6 +184,9 @@ def test_ctrl_c_leaves_a_resumable_checkpoint(tmp_path):
         stderr=subprocess.PIPE,
         text=True,
         env={**os.environ, "JAX_PLATFORMS": "cpu"},
+        # Ctrl-C's default action, even where this test runs with SIGINT ignored (a pytest-xdist
+        # worker, a background job), which the child would otherwise inherit.
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     deadline = time.time() + 240
     while time.time() < deadline and not (run_dir / "checkpoint.npz").exists():
