@@ -18,6 +18,22 @@ correlation of RHCR's mean throughput with minus the screen's mean crowding in f
 And RHCR's split-half agreement with itself (seeds 0-4 against seeds 5-9: Spearman of mean
 throughput, agreement of the majority verdicts): the ceiling of the fidelity targets.
 
+Free-flow estimate (:mod:`nca_qd.sim.free_flow`): beside each PIBT setting's raw figures,
+the Spearman of RHCR's mean throughput against the screen's RHCR estimate (a flowing screened
+run counts ``BENCH_SCREEN_EFFICIENCY`` x the layout's free-flow throughput, default 0.932 as
+fitted on the warehouse search's memo by the ``search`` part; a congested one 1.3 x its own).
+``BENCH_SCREEN_PBS_MAX_NODES`` sets exact RHCR's per-call node budget (default RHCR's ``auto``;
+2000 is the search's, which reaches the same verdicts at a fraction of the cost).
+
+The search's own layouts (``BENCH_SCREEN_PARTS=search``, not in the default set: about 2 min
+of screening): ``BENCH_SCREEN_SEARCH_N`` (default 300) distinct repaired layouts drawn at random
+from a warehouse (even) search's evaluation memo (``BENCH_SCREEN_MEMO``, default
+``results/warehouse_even_a5/eval_memo.npz``), whose exact RHCR throughputs (5 seeds, T=1,000,
+200 agents) the memo holds. Screened with 5 seeds; reports the Spearman of RHCR's mean against
+the screen's, the free-flow estimate's and free flow alone, and how many of RHCR's top 10 %
+each ranks in its own top 10 %. The estimate's efficiency is fitted on one half of the layouts
+(those on which all 5 RHCR runs flow) and scored on the other half.
+
 Planners: ``BENCH_SCREEN_PLANNERS`` (default ``pibt,windowed``) picks the screen's planners that
 fidelity and speed measure: PIBT with both congestion rules, the windowed prioritized planner
 (``nca_qd.sim.screen_windowed``) with RHCR's rule. ``BENCH_SCREEN_CACHED_ONLY=1`` restricts the
@@ -49,6 +65,7 @@ import numpy as np
 
 from nca_qd.errors import NcaQdError
 from nca_qd.io import load_map
+from nca_qd.sim.free_flow import free_flow_throughput
 from nca_qd.sim.scenario import build_scenario
 
 MAPS = Path("/work/shared/reference/maps/warehouse")
@@ -56,6 +73,12 @@ SCENARIO, AGENTS, T, SEEDS = "warehouse_even", 200, 1000, [0, 1, 2, 3, 4]
 # Timed calls per speed figure (the best is reported: this machine's run-to-run spread is
 # about 15 %).
 REPEATS = int(os.environ.get("BENCH_SCREEN_REPEATS", 3))
+_NODES = os.environ.get("BENCH_SCREEN_PBS_MAX_NODES", "auto")
+PBS_MAX_NODES: int | str = int(_NODES) if _NODES.isdigit() else _NODES
+# RHCR's share of free-flow throughput where it flows (warehouse even, 33x36, 200 agents),
+# fitted on the warehouse search's memo (``search`` part); the screen's scale for congested runs.
+EFFICIENCY = float(os.environ.get("BENCH_SCREEN_EFFICIENCY", 0.932))
+CONGESTED_SCALE = 1.3
 
 
 def _find(name: str) -> Path | None:
@@ -174,7 +197,7 @@ def rhcr_figures(layouts, cache: str | None, seeds: list[int] = SEEDS) -> dict:
     for name, rows in layouts:
         if name + tag in done:
             continue
-        runs = simulate_many(rows, SCENARIO, AGENTS, T, list(seeds), threads=1)
+        runs = simulate_many(rows, SCENARIO, AGENTS, T, list(seeds), threads=1, pbs_max_nodes=PBS_MAX_NODES)
         done[name + tag] = [[r.throughput, r.success, r.cpu_seconds] for r in runs]
         if cache:
             Path(cache).write_text(json.dumps(done))
@@ -219,6 +242,11 @@ def screen_figures(layouts, congestion: str, planner: str = "pibt") -> tuple[dic
     }, wall
 
 
+def _estimate(runs, free_flow: float, efficiency: float = EFFICIENCY) -> float:
+    """:func:`nca_qd.sim.free_flow.rhcr_estimate` on screen_figures' [throughput, success, _] rows."""
+    return float(np.mean([efficiency * free_flow if ok else CONGESTED_SCALE * thr for thr, ok, _ in runs]))
+
+
 def _spearman(x, y) -> float:
     from scipy.stats import spearmanr
 
@@ -249,6 +277,7 @@ def fidelity() -> None:
     ceiling = 1.0 - float(np.minimum(k, len(SEEDS) - k).sum()) / ex_ok.size
     print(f"per-run congestion agreement ceiling (RHCR's own seed-to-seed spread): {ceiling:.3f}")
     print(json.dumps(split_half(layouts, exact, cache)))
+    flow = {n: free_flow_throughput(build_scenario(r, SCENARIO, n_agents=AGENTS), AGENTS) for n, r in layouts}
     setups = [("pibt", c) for c in ("crowding", "moved") if "pibt" in _planners()]
     setups += [("windowed", "moved")] if "windowed" in _planners() else []
     for planner, congestion in setups:
@@ -269,6 +298,12 @@ def fidelity() -> None:
                 f"(full-horizon runs): {_spearman(ex_thr, -crowd):.3f}"
             )
         rho = _spearman(ex_thr, sc_thr)
+        if planner == "pibt":
+            est = np.array([_estimate(screen[n], flow[n]) for n in names])
+            print(
+                f"spearman of RHCR mean throughput and the screen's free-flow estimate "
+                f"(efficiency {EFFICIENCY}): {_spearman(ex_thr, est):.3f} (raw screen: {rho:.3f})"
+            )
         maj = float(np.mean((ex_ok.mean(1) > 0.5) == (sc_ok.mean(1) > 0.5)))
         run = float(np.mean(ex_ok == sc_ok))
         print(
@@ -285,6 +320,63 @@ def fidelity() -> None:
                 }
             )
         )
+
+
+def search_layouts() -> None:
+    """The screen on the search's own layouts: a random sample of a memo's exactly-run layouts."""
+    from nca_qd.io import array_to_rows
+    from nca_qd.layouts import get_layout
+    from nca_qd.scoring.memo import layout_key
+    from nca_qd.sim.screen import simulate_scenarios
+
+    path = Path(os.environ.get("BENCH_SCREEN_MEMO", "results/warehouse_even_a5/eval_memo.npz"))
+    if not path.is_file():
+        print(f"search: no memo at {path} (set BENCH_SCREEN_MEMO)")
+        return
+    memo = np.load(path)
+    if json.loads(str(memo["fingerprint"]))["domain"] != SCENARIO:
+        print(f"search: {path} is not a {SCENARIO} memo")
+        return
+    by_key = {layout_key(lay): i for i, lay in enumerate(memo["repair_layouts"])}
+    known = [(by_key[bytes(k)], tp) for k, tp in zip(memo["exact_keys"], memo["exact_throughput"])]
+    rng = np.random.default_rng(0)
+    n = min(int(os.environ.get("BENCH_SCREEN_SEARCH_N", 300)), len(known))
+    pick = rng.choice(len(known), n, replace=False)
+    tiles = get_layout(SCENARIO, "domain").tiles
+    scens = [
+        build_scenario(array_to_rows(memo["repair_layouts"][known[i][0]], tiles), SCENARIO) for i in pick
+    ]
+    exact = np.array([known[i][1] for i in pick])  # [n, 5]
+    flow = np.array([free_flow_throughput(s, AGENTS) for s in scens])
+    print(f"== search layouts: {n} of the {len(known)} exactly-run layouts of {path}, 5 screen seeds")
+    t0 = time.perf_counter()
+    runs = [row for a in range(0, n, 64) for row in simulate_scenarios(scens[a : a + 64], AGENTS, T, SEEDS)]
+    print(f"screen: {time.perf_counter() - t0:.0f} s wall")
+    thr = np.array([[r.throughput for r in row] for row in runs])
+    ok = np.array([[r.success for r in row] for row in runs])
+    fit, test = np.arange(n) < n // 2, np.arange(n) >= n // 2
+    flows = fit & (exact / flow[:, None] > 0.85).all(1)  # all 5 RHCR runs flowed
+    eff = float(np.mean(exact[flows] / flow[flows, None]))
+    est = np.where(ok, eff * flow[:, None], CONGESTED_SCALE * thr).mean(1)
+    truth = exact.mean(1)
+    top = max(1, test.sum() // 10)
+
+    def top_overlap(pred):
+        idx = np.flatnonzero(test)
+        return len(set(idx[np.argsort(-pred[test])[:top]]) & set(idx[np.argsort(-truth[test])[:top]]))
+
+    out = {
+        "layouts_scored": int(test.sum()),
+        "efficiency_fitted": round(eff, 4),
+        "fit_layouts": int(flows.sum()),
+    }
+    for name, pred in (("screen", thr.mean(1)), ("free_flow_estimate", est), ("free_flow_alone", flow)):
+        out[name] = {
+            "spearman": round(_spearman(truth[test], pred[test]), 3),
+            f"top_{top}": top_overlap(pred),
+        }
+    out["rhcr_share_below_6"] = round(float(np.mean(truth < 6.0)), 3)
+    print(json.dumps(out))
 
 
 def _one_big_run(rows: list[str], n: int, steps: int, repeats: int = 1, planner: str = "pibt"):
@@ -433,6 +525,8 @@ def main() -> None:
         speed()
     if "fidelity" in parts:
         fidelity()
+    if "search" in parts:
+        search_layouts()
     if "fidelity_large" in parts:
         fidelity_large()
 

@@ -1,0 +1,103 @@
+"""Free-flow throughput (nca_qd.sim.free_flow) against an independent breadth-first search, a
+corridor whose answer is known by hand, the simulators it bounds, and the screen's estimate."""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, assume, given, settings
+from sim_layouts import MANUFACTURING, WAREHOUSE, small_warehouses
+
+from nca_qd.errors import NcaQdError
+from nca_qd.sim.free_flow import free_flow_throughput, mean_leg_cost, rhcr_estimate
+from nca_qd.sim.result import RunResult
+from nca_qd.sim.scenario import build_scenario
+
+
+def _bfs(traversable: np.ndarray, start: int) -> np.ndarray:
+    """Steps from ``start`` (flat index) to every cell; inf where unreachable."""
+    h, w = traversable.shape
+    dist = np.full(h * w, np.inf)
+    dist[start] = 0
+    todo = deque([start])
+    while todo:
+        c = todo.popleft()
+        y, x = divmod(c, w)
+        for ny, nx in ((y - 1, x), (y + 1, x), (y, x - 1), (y, x + 1)):
+            n = ny * w + nx
+            if 0 <= ny < h and 0 <= nx < w and traversable[ny, nx] and dist[n] == np.inf:
+                dist[n] = dist[c] + 1
+                todo.append(n)
+    return dist
+
+
+def _leg_cost_by_hand(scen) -> float:
+    """mean_leg_cost by a plain double loop over weighted goal pairs."""
+    cycle = list(scen.cycle)
+    total = 0.0
+    for a, b in zip(cycle, cycle[1:] + cycle[:1]):
+        ca, cb = scen.classes[a], scen.classes[b]
+        leg = 0.0
+        for cell, wa in zip(ca.cells, ca.weights):
+            d = _bfs(scen.traversable, int(cell))
+            leg += (
+                wa
+                / ca.weights.sum()
+                * sum(wb / cb.weights.sum() * d[int(g)] for g, wb in zip(cb.cells, cb.weights))
+            )
+        total += leg + cb.dwell
+    return total / len(cycle)
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(rows=small_warehouses())
+def test_mean_leg_cost_matches_an_independent_search(rows):
+    try:
+        scen = build_scenario(rows, "warehouse_even", n_agents=4)
+    except NcaQdError:
+        assume(False)
+    assert mean_leg_cost(scen) == pytest.approx(_leg_cost_by_hand(scen), rel=1e-9)
+
+
+def test_a_corridor_by_hand():
+    """Endpoint at one end, workstation at the other, 10 cells apart: every leg is 10 steps, no
+    dwell (warehouse), so n agents finish n/10 tasks per step."""
+    rows = ["e.........w"]
+    scen = build_scenario(rows, "warehouse_even", n_agents=3)
+    assert mean_leg_cost(scen) == pytest.approx(10.0)
+    assert free_flow_throughput(scen, 3) == pytest.approx(0.3)
+
+
+def test_manufacturing_dwell_times_add_to_the_legs():
+    scen = build_scenario(MANUFACTURING, "manufacturing", n_agents=4)
+    dwell = np.mean([scen.classes[c].dwell for c in scen.cycle])
+    moving = mean_leg_cost(scen) - dwell
+    assert dwell > 0 and moving > 0
+    assert _leg_cost_by_hand(scen) == pytest.approx(mean_leg_cost(scen))
+
+
+def test_free_flow_bounds_exact_rhcr():
+    """No agent is faster than free flow: exact RHCR's long-run throughput stays below it."""
+    from nca_qd.sim.rhcr import simulate
+
+    n = 8
+    bound = free_flow_throughput(build_scenario(WAREHOUSE, "warehouse_even", n_agents=n), n)
+    for seed in (0, 1):
+        res = simulate(WAREHOUSE, "warehouse_even", n_agents=n, T=400, seed=seed)
+        assert 0 < res.throughput <= bound * 1.02  # the first legs start anywhere: 2 % slack
+        assert res.throughput > 0.5 * bound  # 8 agents on this map flow
+
+
+def _run(success: bool, throughput: float) -> RunResult:
+    z = np.zeros(1)
+    return RunResult("warehouse_even", 0, 1, 1, throughput, success, not success, 1, 0, z, z, 0.0, 0.0, [])
+
+
+def test_rhcr_estimate_takes_free_flow_for_flowing_runs_and_scales_congested_ones():
+    runs = [_run(True, 4.0), _run(False, 1.0), _run(True, 5.0)]
+    est = rhcr_estimate(runs, free_flow=7.0, efficiency=0.9, congested_scale=1.3)
+    assert est == pytest.approx((0.9 * 7.0 * 2 + 1.3) / 3)
+    with pytest.raises(ValueError):
+        rhcr_estimate([], 7.0, 0.9, 1.3)
