@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
-from sim_layouts import MANUFACTURING, WAREHOUSE, small_warehouses
+from sim_layouts import MANUFACTURING, WAREHOUSE, bfs_distances, small_warehouses
 
 from nca_qd.errors import NcaQdError
 from nca_qd.sim import screen
@@ -234,23 +234,7 @@ def test_shortcuts_leave_the_pibt_plan_unchanged(monkeypatch):
 
 def _bfs(grid: np.ndarray, goal: int) -> np.ndarray:
     """Independent breadth-first distances from one flat cell (INF16 where unreachable)."""
-    from collections import deque
-
-    H, W = grid.shape
-    out = np.full(H * W, screen.INF16, np.int64)
-    if goal < 0 or not grid.flat[goal]:
-        return out
-    out[goal] = 0
-    todo = deque([goal])
-    while todo:
-        c = todo.popleft()
-        r, k = divmod(c, W)
-        for rr, kk in ((r - 1, k), (r + 1, k), (r, k - 1), (r, k + 1)):
-            n = rr * W + kk
-            if 0 <= rr < H and 0 <= kk < W and grid[rr, kk] and out[n] == screen.INF16:
-                out[n] = out[c] + 1
-                todo.append(n)
-    return out
+    return bfs_distances(grid, goal, screen.INF16)
 
 
 @settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
