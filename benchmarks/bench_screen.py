@@ -65,7 +65,7 @@ import numpy as np
 
 from nca_qd.errors import NcaQdError
 from nca_qd.io import load_map
-from nca_qd.sim.free_flow import free_flow_throughput
+from nca_qd.sim.free_flow import free_flow_throughput, rhcr_estimate
 from nca_qd.sim.scenario import build_scenario
 
 MAPS = Path("/work/shared/reference/maps/warehouse")
@@ -242,11 +242,6 @@ def screen_figures(layouts, congestion: str, planner: str = "pibt") -> tuple[dic
     }, wall
 
 
-def _estimate(runs, free_flow: float, efficiency: float = EFFICIENCY) -> float:
-    """:func:`nca_qd.sim.free_flow.rhcr_estimate` on screen_figures' [throughput, success, _] rows."""
-    return float(np.mean([efficiency * free_flow if ok else CONGESTED_SCALE * thr for thr, ok, _ in runs]))
-
-
 def _spearman(x, y) -> float:
     from scipy.stats import spearmanr
 
@@ -299,7 +294,13 @@ def fidelity() -> None:
             )
         rho = _spearman(ex_thr, sc_thr)
         if planner == "pibt":
-            est = np.array([_estimate(screen[n], flow[n]) for n in names])
+            est = rhcr_estimate(
+                [[r[0] for r in screen[n]] for n in names],
+                [[r[1] for r in screen[n]] for n in names],
+                [flow[n] for n in names],
+                EFFICIENCY,
+                CONGESTED_SCALE,
+            )
             print(
                 f"spearman of RHCR mean throughput and the screen's free-flow estimate "
                 f"(efficiency {EFFICIENCY}): {_spearman(ex_thr, est):.3f} (raw screen: {rho:.3f})"
@@ -357,7 +358,7 @@ def search_layouts() -> None:
     fit, test = np.arange(n) < n // 2, np.arange(n) >= n // 2
     flows = fit & (exact / flow[:, None] > 0.85).all(1)  # all 5 RHCR runs flowed
     eff = float(np.mean(exact[flows] / flow[flows, None]))
-    est = np.where(ok, eff * flow[:, None], CONGESTED_SCALE * thr).mean(1)
+    est = rhcr_estimate(thr, ok, flow, eff, CONGESTED_SCALE)
     truth = exact.mean(1)
     top = max(1, test.sum() // 10)
 

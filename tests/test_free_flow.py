@@ -10,7 +10,6 @@ from sim_layouts import MANUFACTURING, WAREHOUSE, bfs_distances, small_warehouse
 
 from nca_qd.errors import NcaQdError
 from nca_qd.sim.free_flow import free_flow_throughput, mean_leg_cost, rhcr_estimate
-from nca_qd.sim.result import RunResult
 from nca_qd.sim.scenario import build_scenario
 
 
@@ -72,14 +71,10 @@ def test_free_flow_bounds_exact_rhcr():
         assert res.throughput > 0.5 * bound  # 8 agents on this map flow
 
 
-def _run(success: bool, throughput: float) -> RunResult:
-    z = np.zeros(1)
-    return RunResult("warehouse_even", 0, 1, 1, throughput, success, not success, 1, 0, z, z, 0.0, 0.0, [])
-
-
 def test_rhcr_estimate_takes_free_flow_for_flowing_runs_and_scales_congested_ones():
-    runs = [_run(True, 4.0), _run(False, 1.0), _run(True, 5.0)]
-    est = rhcr_estimate(runs, free_flow=7.0, efficiency=0.9, congested_scale=1.3)
-    assert est == pytest.approx((0.9 * 7.0 * 2 + 1.3) / 3)
-    with pytest.raises(ValueError):
-        rhcr_estimate([], 7.0, 0.9, 1.3)
+    thr = [[4.0, 1.0, 5.0], [2.0, 3.0, 0.5]]
+    ok = [[True, False, True], [False, False, False]]
+    est = rhcr_estimate(thr, ok, free_flow=[7.0, 6.0], efficiency=0.9, congested_scale=1.3)
+    np.testing.assert_allclose(est, [(0.9 * 7.0 * 2 + 1.3 * 1.0) / 3, 1.3 * 5.5 / 3])
+    with pytest.raises(ValueError, match="runs on the last axis"):
+        rhcr_estimate(np.zeros((2, 0)), np.zeros((2, 0), bool), [7.0, 6.0], 0.9, 1.3)

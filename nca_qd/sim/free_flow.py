@@ -20,13 +20,11 @@ own throughput (tasks done before the stop, over T), scaled like RHCR's.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import shortest_path
 
-from nca_qd.sim.result import RunResult
 from nca_qd.sim.scenario import Scenario
 
 __all__ = ["mean_leg_cost", "free_flow_throughput", "rhcr_estimate"]
@@ -72,13 +70,15 @@ def free_flow_throughput(scen: Scenario, n_agents: int) -> float:
 
 
 def rhcr_estimate(
-    runs: Sequence[RunResult], free_flow: float, efficiency: float, congested_scale: float
-) -> float:
-    """RHCR's mean throughput estimated from screened runs of one layout: a run that flowed
-    counts ``efficiency * free_flow``, a congested one ``congested_scale`` times its own
-    throughput. ``efficiency`` is RHCR's share of free flow where it flows (a calibrated
-    constant of the domain and density); ``congested_scale`` the screen's usual scale."""
-    if not runs:
-        raise ValueError("rhcr_estimate needs at least one screened run")
-    values = [efficiency * free_flow if r.success else congested_scale * r.throughput for r in runs]
-    return float(np.mean(values))
+    throughput: ArrayLike, success: ArrayLike, free_flow: ArrayLike, efficiency: float, congested_scale: float
+) -> np.ndarray:
+    """RHCR's mean throughput estimated from screened runs ``[..., runs]`` of layouts ``[...]``
+    (their ``free_flow``): a run that flowed counts ``efficiency * free_flow``, a congested one
+    ``congested_scale`` times its own throughput; the mean over the last axis. ``efficiency``
+    is RHCR's share of free flow where it flows (a calibrated constant of the domain and
+    density); ``congested_scale`` the screen's usual scale."""
+    thr, ok = np.asarray(throughput, dtype=float), np.asarray(success, dtype=bool)
+    if thr.shape != ok.shape or thr.ndim == 0 or thr.shape[-1] == 0:
+        raise ValueError(f"rhcr_estimate needs runs on the last axis, got {thr.shape} and {ok.shape}")
+    flowing = efficiency * np.asarray(free_flow, dtype=float)[..., None]
+    return np.where(ok, flowing, congested_scale * thr).mean(-1)
