@@ -20,13 +20,14 @@ throughput, agreement of the majority verdicts): the ceiling of the fidelity tar
 
 Free-flow estimate (:mod:`nca_qd.sim.free_flow`): beside each PIBT setting's raw figures,
 the Spearman of RHCR's mean throughput against the screen's RHCR estimate (a flowing screened
-run counts ``BENCH_SCREEN_EFFICIENCY`` x the layout's free-flow throughput, default 0.932 as
-fitted on the warehouse search's memo by the ``search`` part; a congested one 1.3 x its own).
+run counts ``BENCH_SCREEN_EFFICIENCY`` x the layout's free-flow throughput, default 0.932:
+RHCR's mean share of free flow on 278 layouts of the warehouse search's memo whose 5 RHCR runs
+all flowed, none of them in this set; a congested run counts 1.3 x its own throughput).
 ``BENCH_SCREEN_PBS_MAX_NODES`` sets exact RHCR's per-call node budget (default RHCR's ``auto``;
 2000 is the search's, which reaches the same verdicts at a fraction of the cost).
 
-The search's own layouts (``BENCH_SCREEN_PARTS=search``, not in the default set: about 2 min
-of screening): ``BENCH_SCREEN_SEARCH_N`` (default 300) distinct repaired layouts drawn at random
+The search's own layouts (``BENCH_SCREEN_PARTS=search``, not in the default set: a few
+minutes of screening): ``BENCH_SCREEN_SEARCH_N`` (default 300) distinct repaired layouts drawn at random
 from a warehouse (even) search's evaluation memo (``BENCH_SCREEN_MEMO``, default
 ``results/warehouse_even_a5/eval_memo.npz``), whose exact RHCR throughputs (5 seeds, T=1,000,
 200 agents) the memo holds. Screened with 5 seeds; reports the Spearman of RHCR's mean against
@@ -76,7 +77,7 @@ REPEATS = int(os.environ.get("BENCH_SCREEN_REPEATS", 3))
 _NODES = os.environ.get("BENCH_SCREEN_PBS_MAX_NODES", "auto")
 PBS_MAX_NODES: int | str = int(_NODES) if _NODES.isdigit() else _NODES
 # RHCR's share of free-flow throughput where it flows (warehouse even, 33x36, 200 agents),
-# fitted on the warehouse search's memo (``search`` part); the screen's scale for congested runs.
+# measured on the warehouse search's memo; the screen's scale for congested runs.
 EFFICIENCY = float(os.environ.get("BENCH_SCREEN_EFFICIENCY", 0.932))
 CONGESTED_SCALE = 1.3
 
