@@ -177,17 +177,21 @@ def test_resume_of_another_domain_is_refused(full_run, capsys, monkeypatch):
 def test_ctrl_c_leaves_a_resumable_checkpoint(tmp_path):
     run_dir = tmp_path / "interrupted"
     args = TINY + ["qd.n_evals=4000", f"run_dir={run_dir}"]
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "experiments.run", *args],
-        cwd=REPO,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env={**os.environ, "JAX_PLATFORMS": "cpu"},
-        # Ctrl-C's default action, even where this test runs with SIGINT ignored (a pytest-xdist
-        # worker, a background job), which the child would otherwise inherit.
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
-    )
+    # A child inherits SIGINT *ignored* (as in a pytest-xdist worker or a background job) but
+    # not a handler: with one installed here while it starts, Ctrl-C has its default action
+    # in the child.
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "experiments.run", *args],
+            cwd=REPO,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env={**os.environ, "JAX_PLATFORMS": "cpu"},
+        )
+    finally:
+        signal.signal(signal.SIGINT, old)
     deadline = time.time() + 240
     while time.time() < deadline and not (run_dir / "checkpoint.npz").exists():
         time.sleep(0.5)
