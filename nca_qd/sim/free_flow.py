@@ -10,12 +10,14 @@ It depends on the layout alone (no simulation) and is an upper bound on any simu
 **Why the screen needs it.** Where RHCR flows its throughput is a near-constant share of free
 flow (measured at 33x36, 200 agents, T=1,000: 0.90-0.96 of it, most layouts 0.93-0.95), while
 the PIBT screen's share varies more from layout to layout (its moves lack RHCR's lookahead, and
-how much that costs depends on the aisles). Among layouts on which RHCR flows, free flow ranks
-RHCR's throughput better than the screen's own throughput does (150 random layouts of the
-warehouse search's memo, ``bench_screen``'s ``search`` part: Spearman 0.90 against 0.60).
-The screen is kept for what free flow cannot know: whether a layout congests. :func:`rhcr_estimate` therefore takes each screened run's verdict and
-replaces a flowing run's throughput by ``efficiency * free flow``; a congested run keeps its
-own throughput (tasks done before the stop, over T), scaled like RHCR's.
+how much that costs depends on the aisles). On the search's own layouts, which mostly flow,
+free flow ranks RHCR's throughput better than the screen's own throughput does (150 random
+layouts of the warehouse search's memo, ``bench_screen``'s ``search`` part: Spearman 0.90
+against 0.60).
+The screen is kept for what free flow cannot know: whether a layout congests.
+:func:`rhcr_estimate` therefore takes each screened run's verdict and replaces a flowing run's
+throughput by ``efficiency * free flow``; a congested run keeps its own throughput (tasks done
+before the stop, over T), scaled like RHCR's.
 """
 
 from __future__ import annotations
