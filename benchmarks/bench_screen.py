@@ -33,7 +33,10 @@ from a warehouse (even) search's evaluation memo (``BENCH_SCREEN_MEMO``, default
 200 agents) the memo holds. Screened with 5 seeds; reports the Spearman of RHCR's mean against
 the screen's, the free-flow estimate's and free flow alone, and how many of RHCR's top 10 %
 each ranks in its own top 10 %. The estimate's efficiency is fitted on one half of the layouts
-(those on which all 5 RHCR runs flow) and scored on the other half.
+(those on which all 5 RHCR runs flow) and scored on the other half. With the run's
+``config.yaml`` beside the memo it also replays the search's exact-run choice on the scored
+half: each layout against its result cell's elite as it was when the layout came (rebuilt from
+the memo), per ``exact_margin``, for the scaled screen and the estimate.
 
 Planners: ``BENCH_SCREEN_PLANNERS`` (default ``pibt,windowed``) picks the screen's planners that
 fidelity and speed measure: PIBT with both congestion rules, the windowed prioritized planner
@@ -324,6 +327,34 @@ def fidelity() -> None:
         )
 
 
+def _elite_before(memo, config_path: Path, layouts: np.ndarray) -> np.ndarray:
+    """Per exact entry of a search's memo (its repaired ``layouts``), the result archive's elite
+    in the entry's cell just before the entry's iteration (-inf: the cell was empty). The
+    result archive takes every exactly-run layout with its mean exact throughput, so that elite
+    is the best mean of the entries of earlier iterations in the same cell."""
+    from omegaconf import OmegaConf
+
+    from nca_qd.domains import make_domain
+    from nca_qd.qd.archive import grid_cell_indices
+
+    cfg = OmegaConf.load(config_path)
+    domain = make_domain(cfg.domain)
+    meas = np.concatenate(
+        [np.asarray(domain.measures(layouts[a : a + 256])) for a in range(0, len(layouts), 256)]
+    )
+    spec = cfg.domain.measures
+    cells = np.asarray(grid_cell_indices(meas, list(spec.cells), [list(r) for r in spec.ranges]))
+    mean, it = memo["exact_throughput"].mean(1), memo["exact_iteration"]
+    out = np.full(len(mean), -np.inf)
+    best: dict[int, float] = {}
+    for t in np.unique(it):  # in iteration order: a batch's layouts see the archive before it
+        now = np.flatnonzero(it == t)
+        out[now] = [best.get(int(c), -np.inf) for c in cells[now]]
+        for i in now:
+            best[int(cells[i])] = max(best.get(int(cells[i]), -np.inf), float(mean[i]))
+    return out
+
+
 def search_layouts() -> None:
     """The screen on the search's own layouts: a random sample of a memo's exactly-run layouts."""
     from nca_qd.io import array_to_rows
@@ -341,6 +372,12 @@ def search_layouts() -> None:
         return
     by_key = {layout_key(lay): i for i, lay in enumerate(memo["repair_layouts"])}
     known = [(by_key[bytes(k)], tp) for k, tp in zip(memo["exact_keys"], memo["exact_throughput"])]
+    config = path.parent / "config.yaml"
+    elite_all = (
+        _elite_before(memo, config, memo["repair_layouts"][[i for i, _ in known]])
+        if config.is_file()
+        else None
+    )
     rng = np.random.default_rng(0)
     n = min(int(os.environ.get("BENCH_SCREEN_SEARCH_N", 300)), len(known))
     pick = rng.choice(len(known), n, replace=False)
@@ -379,6 +416,27 @@ def search_layouts() -> None:
         }
     out["rhcr_share_below_6"] = round(float(np.mean(truth < 6.0)), 3)
     print(json.dumps(out))
+    if elite_all is None:
+        return
+    # The search's decision replayed: with the result archive as it was when each layout came,
+    # does a prediction x (1 + exact_margin) reach its cell's elite (an exact run follows)?
+    # "improvers": the layouts whose exact mean beat that elite (they entered the archive).
+    # The memo only holds layouts the search chose (scaled screen, or the random check share),
+    # so these figures favour the scaled screen.
+    elite = elite_all[pick]
+    occ = test & np.isfinite(elite)
+    better = truth > elite
+    choice = {"layouts_in_occupied_cells": int(occ.sum()), "improvers": int((occ & better).sum())}
+    for name, pred in (("screen_scaled", CONGESTED_SCALE * thr.mean(1)), ("free_flow_estimate", est)):
+        err = pred[occ] - truth[occ]
+        choice[name] = {"bias": round(float(err.mean()), 3), "mae": round(float(np.abs(err).mean()), 3)}
+        for margin in (0.1, 0.05, 0.03, 0.0):  # eval.exact_margin (the search's: 0.1)
+            chosen = pred * (1 + margin) >= elite
+            choice[name][f"margin_{margin}"] = {
+                "improvers_chosen": int((occ & better & chosen).sum()),
+                "others_chosen": int((occ & ~better & chosen).sum()),
+            }
+    print(json.dumps(choice))
 
 
 def _one_big_run(rows: list[str], n: int, steps: int, repeats: int = 1, planner: str = "pibt"):

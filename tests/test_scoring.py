@@ -198,6 +198,12 @@ def test_scoring_config_rejects_bad_values():
         ScoringConfig.from_cfg({"screen_empty_cells": "maybe"})
     with pytest.raises(NcaQdError, match="eval.screen must be true or false"):
         ScoringConfig.from_cfg({"screen": 3})
+    with pytest.raises(NcaQdError, match="eval.screen_estimate must be one of scaled, free_flow"):
+        ScoringConfig.from_cfg({"screen_estimate": "guess"})
+    with pytest.raises(NcaQdError, match="eval.screen_efficiency must be in"):
+        ScoringConfig.from_cfg({"screen_efficiency": 1.5})
+    # a saved config from before the free-flow estimate keeps the estimate it ran with
+    assert ScoringConfig.from_cfg({}).screen_estimate == "scaled"
     assert ScoringConfig.from_cfg({"screen_empty_cells": True}).screen_empty_cells
 
 
@@ -224,17 +230,25 @@ def _regions(domain, gen, b, seed):
     return np.asarray(gen.generate(sol, domain.seed(domain.gen_shape("train")), 20))
 
 
-def test_batch_scores_match_independent_recomputation(tiny_scorer):
+@pytest.mark.parametrize("estimate", ["free_flow", "scaled"])
+def test_batch_scores_match_independent_recomputation(tiny_scorer, estimate):
     """Repaired layouts are valid (independent validator); exact throughputs equal direct RHCR
-    runs with the same seeds; f_opt = f + alpha * Delta; the result archive only gets layouts
-    with exact runs; measures are those of the repaired layouts."""
+    runs with the same seeds; f_opt = f + alpha * Delta, where a layout without exact runs has
+    f = the screen's prediction of RHCR (recomputed from direct screen runs with the same
+    seeds); the result archive only gets layouts with exact runs; measures are those of the
+    repaired layouts."""
+    import dataclasses
+
     import jax
 
     from nca_qd.io import array_to_rows
     from nca_qd.repair import make_rules
     from nca_qd.repair.validator import check
     from nca_qd.scoring.mapf import ScoringContext
+    from nca_qd.sim.free_flow import free_flow_throughput
     from nca_qd.sim.rhcr import simulate
+    from nca_qd.sim.scenario import build_scenario
+    from nca_qd.sim.screen import simulate_scenarios
 
     cfg, domain, gen, scorer = tiny_scorer
     regions = _regions(domain, gen, 4, seed=1)
@@ -242,7 +256,14 @@ def test_batch_scores_match_independent_recomputation(tiny_scorer):
     # Cells 0.. are "occupied" by an unbeatable elite except where the measures fall in
     # the first entropy column: those cells are empty, so those layouts must get exact runs.
     ctx = ScoringContext(result_elite=lambda m: np.where(np.asarray(m)[:, 0] < 0.1, -np.inf, 1e9))
-    ev = scorer(regions, key, ctx)
+    saved = scorer.cfg
+    scorer.cfg = dataclasses.replace(saved, screen_estimate=estimate)
+    try:
+        efficiency = scorer.efficiency  # the prior: this scorer has seen < 50 flowing runs
+        ev = scorer(regions, key, ctx)
+    finally:
+        scorer.cfg = saved
+    assert efficiency == saved.screen_efficiency
     ex = ev.extras
     rules = make_rules("warehouse_even", ex["repaired"].shape[1:], n_shelves=20)
     seed0 = int(np.asarray(key, dtype=np.uint32).ravel()[-1] % np.uint32(2**31 - 1))
@@ -260,10 +281,20 @@ def test_batch_scores_match_independent_recomputation(tiny_scorer):
             assert ev.result_objective[i] == pytest.approx(direct, abs=1e-6)
             f = ex["exact"][i]
         else:
-            f = ex["screened"][i] * scorer.cfg.screen_scale
+            scen = build_scenario(array_to_rows(ex["repaired"][i], domain.layout_tiles), "warehouse_even")
+            runs = simulate_scenarios([scen], 10, 60, [seed0, seed0 + 1])[0]
+            assert np.mean([r.throughput for r in runs]) == pytest.approx(ex["screened"][i], abs=1e-6)
+            flow = free_flow_throughput(scen, 10)
+            scaled = [saved.screen_scale * r.throughput for r in runs]
+            if estimate == "free_flow":
+                f = np.mean([efficiency * flow if r.success else s for r, s in zip(runs, scaled)])
+            else:
+                f = np.mean(scaled)
         assert ev.objective[i] == pytest.approx(f + 5.0 * ex["similarity"][i], rel=1e-5)
     m = ex["metrics"]
     assert m["n_exact"] == int(np.sum(~np.isnan(ex["exact"]))) and m["exact_runs"] == 2 * m["n_exact"]
+    assert np.isnan(ex["exact"]).any(), "some layouts must be scored by the screen alone"
+    assert (m["screen_efficiency"] == efficiency) == (estimate == "free_flow")
 
 
 def test_empty_cells_skip_the_screen(tiny_scorer):
@@ -398,6 +429,35 @@ def test_memo_survives_a_file_and_a_resume_drops_later_entries(tmp_path):
     assert len(EvalMemo.load(tmp_path / "bad.npz", "settings A")) == 0
 
 
+def test_free_flow_efficiency_is_calibrated_on_flowing_exact_runs_and_survives_a_resume(tmp_path):
+    """The memo keeps each exact run's verdict and the layout's free flow; the scorer's
+    efficiency is the mean share of the flowing runs once there are 50 of them (the prior
+    before), counting only the entries up to a resumed checkpoint's iteration."""
+    from nca_qd.domains import make_domain
+    from nca_qd.scoring.mapf import MIN_CALIBRATION_RUNS
+    from nca_qd.scoring.memo import MEMO_FILE, EvalMemo
+
+    cfg = compose_config("run", TINY_WAREHOUSE + ["eval.workers=0", "eval.screen_efficiency=0.5"])
+    scorer = make_domain(cfg.domain).make_evaluator(cfg)
+    try:
+        memo = EvalMemo(scorer.memo.fingerprint)
+        for i in range(30):  # 30 flowing runs at 0.9 of free flow, 30 congested ones
+            memo.put_exact(bytes([1, i]) * 10, np.array([9.0, 3.0]), 1, success=[True, False], free_flow=10.0)
+        for i in range(20):  # 40 flowing runs at 0.8, later
+            memo.put_exact(bytes([2, i]) * 10, np.array([8.0, 8.0]), 5, success=[True, True], free_flow=10.0)
+        memo.put_exact(b"\x07" * 20, np.array([1.0, 1.0]), 1)  # no verdicts recorded: not counted
+        memo.save(tmp_path / MEMO_FILE)
+        assert MIN_CALIBRATION_RUNS == 50
+        scorer.restore_state(tmp_path, iteration=4)
+        assert scorer.memo.flowing_shares().size == 30 and scorer.efficiency == 0.5
+        scorer.restore_state(tmp_path, iteration=5)
+        np.testing.assert_allclose(np.sort(scorer.memo.flowing_shares()), [0.8] * 40 + [0.9] * 30)
+        assert scorer.efficiency == pytest.approx((30 * 0.9 + 40 * 0.8) / 70)
+        assert len(scorer.memo.to_arrays()["exact_success"]) == 51
+    finally:
+        scorer.close()
+
+
 def test_results_of_another_planner_are_never_reused(tiny_scorer, tmp_path):
     """The memo's fingerprint names the exact simulator's version: a memo written under
     another version is not loaded."""
@@ -426,7 +486,7 @@ def test_memo_repairs_and_simulates_each_distinct_layout_once(tiny_scorer):
 
     _, domain, gen, scorer = tiny_scorer
     calls = {"repair": [], "exact": []}
-    repair, exact = scorer.repair, scorer.exact
+    repair, exact = scorer.repair, scorer._exact_runs
 
     def count_repair(layouts):
         calls["repair"].append(len(layouts))
@@ -439,7 +499,7 @@ def test_memo_repairs_and_simulates_each_distinct_layout_once(tiny_scorer):
     base = _regions(domain, gen, 2, seed=3)
     regions = np.concatenate([base, base[::-1]])  # 4 layouts, 2 distinct
     empty = ScoringContext(result_elite=lambda m: np.full(len(m), -np.inf), iteration=1)
-    scorer.memo, scorer.repair, scorer.exact = EvalMemo("test"), count_repair, count_exact
+    scorer.memo, scorer.repair, scorer._exact_runs = EvalMemo("test"), count_repair, count_exact
     try:
         ev = scorer(regions, jax.random.PRNGKey(7), empty)
         m = ev.extras["metrics"]
@@ -463,7 +523,7 @@ def test_memo_repairs_and_simulates_each_distinct_layout_once(tiny_scorer):
         m2 = again.extras["metrics"]
         assert (m2["repair_reused"], m2["exact_reused"], m2["exact_runs"]) == (4, 4, 0)
     finally:
-        scorer.memo, scorer.repair, scorer.exact = None, repair, exact
+        scorer.memo, scorer.repair, scorer._exact_runs = None, repair, exact
 
 
 # ------------------------------------------------------------------------------ full runs
@@ -537,6 +597,7 @@ def test_tiny_warehouse_run_writes_outputs_resumes_identically_and_from_its_snap
     "args, message",
     [
         (["eval.exact=sometimes"], "eval.exact must be one of selective, all"),
+        (["eval.screen_estimate=guess"], "eval.screen_estimate must be one of scaled, free_flow"),
         (
             ["eval.scheduler=tcp://127.0.0.1:9", "eval.connect_timeout_s=1"],
             "cannot reach the Dask scheduler at tcp://127.0.0.1:9",

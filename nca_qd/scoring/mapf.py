@@ -11,8 +11,15 @@ Per batch (paper §4 with the design's screening step):
    measure the screen; a random ``exact_random_share`` of them is screened for that
    (``screen_empty_cells: true`` screens them all). Early in a search most cells are empty
    and this saves most of the screen's time.
-4. **Exact RHCR** (parallel, on the backend) for the layouts whose screened throughput, scaled
-   by ``screen_scale`` (the screen is pessimistic), could place them in the result archive:
+   The screen's runs predict RHCR's throughput (``screen_estimate``): ``free_flow`` keeps each
+   run's verdict and counts a flowing one as RHCR's share of the layout's free-flow throughput
+   (:func:`nca_qd.sim.free_flow.rhcr_estimate`; the share, ``screen_efficiency``, is
+   recalibrated on the search's own flowing exact runs once it has
+   :data:`MIN_CALIBRATION_RUNS`), a congested one ``screen_scale`` x its own; ``scaled``
+   counts every run ``screen_scale`` x its own. On the search's own layouts the first ranks
+   RHCR's throughput far better (``benchmarks/bench_screen.py``, part ``search``).
+4. **Exact RHCR** (parallel, on the backend) for the layouts whose predicted throughput
+   could place them in the result archive:
    their cell is empty, or ``scaled * (1 + exact_margin) >= `` the cell's elite; plus a random
    ``exact_random_share`` of the rest, as a running check on the screen. ``exact: all``
    simulates every layout exactly (and ``screen: false`` skips the screen, implying ``all``).
@@ -24,10 +31,11 @@ distinct repaired layout simulated exactly once per search; copies take the reme
 is saved beside each checkpoint (``eval_memo.npz``) so a resumed run keeps it.
 
 Objectives: f_res = mean exact throughput over the N_e runs (the result archive takes only
-layouts with exact runs); f_opt = f + alpha * Delta with f = f_res, or the scaled screened
-throughput where no exact run was made. Per iteration the metrics record how many exact runs
-were made and the screen's error on them (scaled screen minus exact, mean and mean absolute),
-and the time spent in each stage (``generate_seconds`` comes from :mod:`nca_qd.pipeline`).
+layouts with exact runs); f_opt = f + alpha * Delta with f = f_res, or the screen's prediction
+where no exact run was made. Per iteration the metrics record how many exact runs were made,
+the screen's error on them (prediction minus exact, mean and mean absolute), the free-flow
+estimate's efficiency in use, and the time spent in each stage (``generate_seconds`` comes
+from :mod:`nca_qd.pipeline`).
 """
 
 from __future__ import annotations
@@ -48,18 +56,24 @@ from nca_qd.io import array_to_rows
 from nca_qd.scoring.backend import JobFailed, make_backend, map_jobs
 from nca_qd.scoring.memo import MEMO_FILE, EvalMemo, first_of_each, layout_key
 from nca_qd.scoring.tasks import ExactOutcome, RepairOutcome, repair_options, repair_task, rhcr_task
+from nca_qd.sim.free_flow import free_flow_throughput, rhcr_estimate
 from nca_qd.sim.rhcr import VERSION as RHCR_VERSION
 from nca_qd.sim.rhcr import planner_options
 
 log = logging.getLogger(__name__)
 
 EXACT_POLICIES = ("selective", "all")
+SCREEN_ESTIMATES = ("scaled", "free_flow")
+# Exact runs that flowed before the search's own calibrate the free-flow estimate's efficiency
+# (until then the configured prior holds).
+MIN_CALIBRATION_RUNS = 50
 METRIC_NAMES = (
     "n_valid",
     "n_exact",
     "exact_runs",
     "screen_bias",
     "screen_mae",
+    "screen_efficiency",
     "repair_reused",
     "exact_reused",
     "generate_seconds",
@@ -76,6 +90,10 @@ class ScoringConfig:
     screen: bool = True
     exact: str = "selective"
     screen_scale: float = 1.3
+    # scaled: screened throughput x screen_scale; free_flow: nca_qd.sim.free_flow.rhcr_estimate.
+    # The default of a config without the key is the estimate runs made before it existed used.
+    screen_estimate: str = "scaled"
+    screen_efficiency: float = 0.932
     exact_margin: float = 0.1
     exact_random_share: float = 0.1
     exact_time_limit_s: float | None = None
@@ -91,6 +109,11 @@ class ScoringConfig:
         exact = str(cfg.get("exact", "selective"))
         if exact not in EXACT_POLICIES:
             raise NcaQdError(f"eval.exact must be one of {', '.join(EXACT_POLICIES)}, got {exact!r}")
+        estimate = str(cfg.get("screen_estimate", "scaled"))
+        if estimate not in SCREEN_ESTIMATES:
+            raise NcaQdError(
+                f"eval.screen_estimate must be one of {', '.join(SCREEN_ESTIMATES)}, got {estimate!r}"
+            )
         for name in ("screen", "screen_empty_cells", "memo"):
             if name in cfg and not isinstance(cfg[name], bool):
                 raise NcaQdError(f"eval.{name} must be true or false, got {cfg[name]!r}")
@@ -99,6 +122,8 @@ class ScoringConfig:
             screen=screen,
             exact=exact if screen else "all",
             screen_scale=float(cfg.get("screen_scale", 1.3)),
+            screen_estimate=estimate,
+            screen_efficiency=float(cfg.get("screen_efficiency", 0.932)),
             exact_margin=float(cfg.get("exact_margin", 0.1)),
             exact_random_share=float(cfg.get("exact_random_share", 0.1)),
             exact_time_limit_s=(
@@ -112,6 +137,8 @@ class ScoringConfig:
             raise NcaQdError(f"eval.exact_random_share must be in [0, 1], got {out.exact_random_share}")
         if out.screen_scale <= 0:
             raise NcaQdError(f"eval.screen_scale must be positive, got {out.screen_scale}")
+        if not 0.0 < out.screen_efficiency <= 1.0:
+            raise NcaQdError(f"eval.screen_efficiency must be in (0, 1], got {out.screen_efficiency}")
         return out
 
 
@@ -154,8 +181,9 @@ class _Work:
     elite: np.ndarray = field(default_factory=lambda: np.zeros(0))  # result cell's objective
     known: np.ndarray = field(default_factory=lambda: np.zeros(0))  # remembered exact mean
     fresh: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
-    screened: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    predicted: np.ndarray = field(default_factory=lambda: np.zeros(0))  # screened x scale
+    screened: np.ndarray = field(default_factory=lambda: np.zeros(0))  # mean screened throughput
+    predicted: np.ndarray = field(default_factory=lambda: np.zeros(0))  # RHCR's, from the screen
+    free_flow: np.ndarray = field(default_factory=lambda: np.zeros(0))  # NaN: not computed
     run_exact: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     exact: np.ndarray = field(default_factory=lambda: np.zeros(0))
     visits: np.ndarray | None = None  # [b, H, W] tile usage of the exact runs (ancillary only)
@@ -205,6 +233,8 @@ class MapfScorer:
             settings["tile_usage"] = True
         self.fingerprint = json.dumps(settings, sort_keys=True, default=str)
         self.memo: EvalMemo | None = EvalMemo(self.fingerprint) if self.cfg.memo else None
+        # exact throughput / free flow of the search's flowing exact runs (free-flow estimate)
+        self._flow_shares: list[np.ndarray] = []
         log.info(
             "%s scoring: %s; screen %s, exact %s",
             domain.name,
@@ -224,10 +254,20 @@ class MapfScorer:
 
     def screen(self, rows: list[list[str]], seeds: list[int], cap: int | None = None) -> np.ndarray:
         """Mean screened throughput per layout ``[n]`` (NaN where the screen failed)."""
+        return self.screen_runs(rows, seeds, cap)[0].mean(axis=1)
+
+    def screen_runs(
+        self, rows: list[list[str]], seeds: list[int], cap: int | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Screened throughput and success per layout and seed ``[n, len(seeds)]`` (NaN and
+        False where the screen failed), and with the free-flow estimate each layout's free-flow
+        throughput ``[n]`` (else NaN)."""
         from nca_qd.sim.scenario import build_scenario
         from nca_qd.sim.screen import simulate_scenarios
 
-        out = np.full(len(rows), np.nan)
+        thr = np.full((len(rows), len(seeds)), np.nan)
+        ok = np.zeros((len(rows), len(seeds)), bool)
+        flow = np.full(len(rows), np.nan)
         scens, keep = [], []
         for i, r in enumerate(rows):
             try:
@@ -242,16 +282,43 @@ class MapfScorer:
             n = len(scens)
             padded = scens + [scens[-1]] * (screen_bucket(n, cap) - n)
             res = simulate_scenarios(padded, self.n_agents, self.T, seeds)[:n]
-            out[keep] = [np.mean([r.throughput for r in row]) for row in res]
+            thr[keep] = [[r.throughput for r in row] for row in res]
+            ok[keep] = [[r.success for r in row] for row in res]
+            if self.cfg.screen_estimate == "free_flow":
+                flow[keep] = [free_flow_throughput(s, self.n_agents) for s in scens]
+        return thr, ok, flow
+
+    def free_flow(self, rows: list[list[str]]) -> np.ndarray:
+        """Free-flow throughput per layout ``[n]`` (NaN where the scenario is rejected)."""
+        from nca_qd.sim.scenario import build_scenario
+
+        out = np.full(len(rows), np.nan)
+        for i, r in enumerate(rows):
+            try:
+                out[i] = free_flow_throughput(
+                    build_scenario(r, self.domain.name, self.n_agents), self.n_agents
+                )
+            except NcaQdError:
+                pass
         return out
+
+    @property
+    def efficiency(self) -> float:
+        """RHCR's share of free flow where it flows: the mean over the search's own flowing
+        exact runs once there are :data:`MIN_CALIBRATION_RUNS`, else the configured prior."""
+        shares = np.concatenate(self._flow_shares) if self._flow_shares else np.zeros(0)
+        return float(shares.mean()) if shares.size >= MIN_CALIBRATION_RUNS else self.cfg.screen_efficiency
 
     def exact(self, rows: list[list[str]], seeds: list[int]) -> np.ndarray:
         """Exact RHCR throughput per layout and seed ``[n, len(seeds)]`` (NaN where a run failed)."""
         return self._exact_runs(rows, seeds)[0]
 
-    def _exact_runs(self, rows: list[list[str]], seeds: list[int]) -> tuple[np.ndarray, np.ndarray | None]:
-        """:meth:`exact`, and with the ancillary target each layout's tile usage ``[n, H, W]``
-        (visits / T, averaged over its runs; NaN where a run failed)."""
+    def _exact_runs(
+        self, rows: list[list[str]], seeds: list[int]
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """:meth:`exact`, each run's verdict ``[n, len(seeds)]``, and with the ancillary target
+        each layout's tile usage ``[n, H, W]`` (visits / T, averaged over its runs; NaN where a
+        run failed)."""
         jobs = [
             (
                 r,
@@ -271,6 +338,7 @@ class MapfScorer:
         tp = np.array([o.throughput if ok else np.nan for o, ok in zip(out, good)]).reshape(
             len(rows), len(seeds)
         )
+        success = np.array([bool(ok and o.success) for o, ok in zip(out, good)]).reshape(tp.shape)
         for o in out:
             err = o.error if isinstance(o, (ExactOutcome, JobFailed)) else None
             if err:
@@ -285,7 +353,7 @@ class MapfScorer:
                 ]
             )
             visits = per_run.reshape(len(rows), len(seeds), *shape).mean(axis=1)
-        return tp, visits
+        return tp, success, visits
 
     def _distinct(self, keys: list[bytes]) -> tuple[np.ndarray, np.ndarray]:
         """``(first, inverse)`` of :func:`first_of_each`; without a memo every layout is its
@@ -313,17 +381,33 @@ class MapfScorer:
         return out, len(layouts) - len(first)  # type: ignore[return-value]
 
     def _exact_batch(
-        self, rows: list[list[str]], keys: list[bytes], seeds: list[int], iteration: int
+        self,
+        rows: list[list[str]],
+        keys: list[bytes],
+        seeds: list[int],
+        iteration: int,
+        free_flow: np.ndarray | None = None,
     ) -> tuple[np.ndarray, int, np.ndarray | None]:
         """Mean exact throughput per layout ``[n]``: one set of runs per distinct layout,
         remembered for the rest of the search. Also returns how many layouts were simulated and,
-        with the ancillary target, their tile usage ``[n, H, W]``."""
+        with the ancillary target, their tile usage ``[n, H, W]``. With the free-flow estimate
+        the flowing runs calibrate its efficiency (``free_flow``: the layouts' where known)."""
         first, inverse = self._distinct(keys)
         todo = [rows[j] for j in first]
-        tp, visits = self._exact_runs(todo, seeds) if self.ancillary else (self.exact(todo, seeds), None)
-        if self.memo is not None:
-            for i, (j, runs) in enumerate(zip(first, tp)):
-                self.memo.put_exact(keys[j], runs, iteration, None if visits is None else visits[i])
+        tp, success, visits = self._exact_runs(todo, seeds)
+        flow = np.full(len(first), np.nan)
+        if self.cfg.screen_estimate == "free_flow":
+            flow = np.asarray(free_flow, float)[first] if free_flow is not None else flow
+            missing = np.flatnonzero(np.isnan(flow))
+            flow[missing] = self.free_flow([todo[i] for i in missing])
+            done = np.isfinite(tp).all(axis=1) & (flow > 0)
+            if done.any():
+                self._flow_shares.append((tp[done] / flow[done, None])[success[done]])
+        for i, (j, runs) in enumerate(zip(first, tp)):
+            if self.memo is not None:
+                self.memo.put_exact(
+                    keys[j], runs, iteration, None if visits is None else visits[i], success[i], flow[i]
+                )
         return tp.mean(axis=1)[inverse], len(first), None if visits is None else visits[inverse]
 
     def _to_screen(self, valid: np.ndarray, elite: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -347,6 +431,7 @@ class MapfScorer:
         """Resume: the run directory's memo, as it was after ``iteration``."""
         if self.memo is not None:
             self.memo = EvalMemo.load(Path(run_dir) / MEMO_FILE, self.memo.fingerprint, iteration)
+            self._flow_shares = [self.memo.flowing_shares()]
             log.info("evaluation memo: %d entries up to iteration %d", len(self.memo), iteration)
 
     # ------------------------------------------------------------------------------ batch
@@ -409,14 +494,22 @@ class MapfScorer:
         to_screen = self._to_screen(w.fresh, w.elite, w.rng)
         t = time.perf_counter()
         w.screened = np.full(len(w.layouts), np.nan)
+        w.predicted = np.full(len(w.layouts), np.nan)
+        w.free_flow = np.full(len(w.layouts), np.nan)
         sel = np.flatnonzero(to_screen)
         if sel.size:
             first, inverse = self._distinct([w.keys[i] for i in sel])
-            once = self.screen([w.rows[sel[j]] for j in first], w.seeds, cap=len(w.layouts))
-            w.screened[sel] = once[inverse]
+            thr, ok, flow = self.screen_runs([w.rows[sel[j]] for j in first], w.seeds, cap=len(w.layouts))
+            w.screened[sel] = thr.mean(axis=1)[inverse]
+            w.free_flow[sel] = flow[inverse]
+            if self.cfg.screen_estimate == "free_flow":
+                # a rejected scenario has NaN runs and free flow: its estimate stays NaN
+                estimate = rhcr_estimate(thr, ok, flow, self.efficiency, self.cfg.screen_scale)
+                w.predicted[sel] = np.where(np.isnan(thr).any(axis=1), np.nan, estimate)[inverse]
+            else:
+                w.predicted[sel] = w.screened[sel] * self.cfg.screen_scale
         w.seconds["screen_seconds"] = time.perf_counter() - t
-        w.ok &= ~(to_screen & np.isnan(w.screened))
-        w.predicted = w.screened * self.cfg.screen_scale
+        w.ok &= ~(to_screen & np.isnan(w.predicted))
 
     def _stage_choose(self, w: _Work) -> None:
         """Which fresh layouts get exact runs (:func:`choose_exact`)."""
@@ -430,7 +523,11 @@ class MapfScorer:
         chosen = np.flatnonzero(w.run_exact)
         if chosen.size:
             w.exact[chosen], w.n_simulated, visits = self._exact_batch(
-                [w.rows[i] for i in chosen], [w.keys[i] for i in chosen], w.seeds, w.iteration
+                [w.rows[i] for i in chosen],
+                [w.keys[i] for i in chosen],
+                w.seeds,
+                w.iteration,
+                w.free_flow[chosen],
             )
             if w.visits is not None and visits is not None:
                 w.visits[chosen] = visits
@@ -453,6 +550,7 @@ class MapfScorer:
             "exact_runs": w.n_simulated * self.n_runs,
             "screen_bias": float(err.mean()) if err.size else float("nan"),
             "screen_mae": float(np.abs(err).mean()) if err.size else float("nan"),
+            "screen_efficiency": self.efficiency if self.cfg.screen_estimate == "free_flow" else float("nan"),
             "repair_reused": int(w.repair_reused),
             "exact_reused": int(np.isfinite(w.known).sum() + n_chosen - w.n_simulated),
             **w.seconds,

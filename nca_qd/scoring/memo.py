@@ -71,6 +71,9 @@ class EvalMemo:
         self._repairs: dict[bytes, tuple[RepairOutcome, int]] = {}
         self._exact: dict[bytes, tuple[np.ndarray, int]] = {}
         self._visits: dict[bytes, np.ndarray] = {}  # tile usage of the exact runs, if recorded
+        # per exact entry: each run's verdict and the layout's free-flow throughput, where
+        # recorded (they calibrate the screen's free-flow estimate; older memos lack them)
+        self._flow: dict[bytes, tuple[np.ndarray, float]] = {}
 
     def __len__(self) -> int:
         return len(self._repairs) + len(self._exact)
@@ -94,13 +97,33 @@ class EvalMemo:
             self._repairs.setdefault(key, (rep, int(iteration)))
 
     def put_exact(
-        self, key: bytes, throughputs: np.ndarray, iteration: int, visits: np.ndarray | None = None
+        self,
+        key: bytes,
+        throughputs: np.ndarray,
+        iteration: int,
+        visits: np.ndarray | None = None,
+        success: np.ndarray | None = None,
+        free_flow: float | None = None,
     ) -> None:
+        """Remember a layout's exact runs (all of them finished); optionally their tile usage,
+        each run's verdict and the layout's free-flow throughput."""
         tp = np.asarray(throughputs, dtype=np.float64)
-        if np.isfinite(tp).all():  # a failed run is not a result
-            self._exact.setdefault(key, (tp, int(iteration)))
+        if np.isfinite(tp).all() and key not in self._exact:  # a failed run is not a result
+            self._exact[key] = (tp, int(iteration))
             if visits is not None:
-                self._visits.setdefault(key, np.asarray(visits, np.float16))
+                self._visits[key] = np.asarray(visits, np.float16)
+            if success is not None and free_flow is not None and np.isfinite(free_flow):
+                self._flow[key] = (np.asarray(success, bool).reshape(tp.shape), float(free_flow))
+
+    def flowing_shares(self) -> np.ndarray:
+        """Exact throughput over free flow of every remembered run that flowed (RHCR's verdict),
+        on the layouts whose verdicts and free flow were recorded."""
+        shares = [
+            self._exact[k][0][ok] / flow
+            for k, (ok, flow) in self._flow.items()
+            if k in self._exact and flow > 0
+        ]
+        return np.concatenate(shares) if shares else np.zeros(0)
 
     # --- on disk -------------------------------------------------------------------------
     def to_arrays(self) -> dict[str, np.ndarray]:
@@ -126,8 +149,16 @@ class EvalMemo:
                 if v is not None and v.shape == vshape:
                     vis[i] = v
             visits = {"exact_visits": vis}
+        # -1: not recorded
+        success = np.full((len(exact), n_runs), -1, np.int8)
+        flow = np.full(len(exact), np.nan)
+        for i, (k, _, _) in enumerate(exact):
+            if k in self._flow:
+                success[i], flow[i] = self._flow[k]
         return {
             **visits,
+            "exact_success": success,
+            "exact_free_flow": flow,
             "fingerprint": np.asarray(self.fingerprint),
             "repair_keys": _key_array([k for k, _, _ in reps]),
             "repair_layouts": layouts,
@@ -180,6 +211,10 @@ class EvalMemo:
                 memo._exact[k] = (tp, it)
                 if "exact_visits" in arrays and np.isfinite(arrays["exact_visits"][i]).all():
                     memo._visits[k] = np.asarray(arrays["exact_visits"][i], np.float16)
+                if "exact_free_flow" in arrays and np.isfinite(arrays["exact_free_flow"][i]):
+                    ok = np.asarray(arrays["exact_success"][i])
+                    if (ok >= 0).all():
+                        memo._flow[k] = (ok.astype(bool), float(arrays["exact_free_flow"][i]))
         return memo
 
     @classmethod
