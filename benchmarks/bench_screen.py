@@ -51,6 +51,12 @@ compilation), and 101x102 with 1,400 agents x 5,000 steps (one run); each the be
 Scale (``BENCH_SCREEN_PARTS=scale``, not in the default set: minutes): the human 101x102
 warehouse tiled 2x2 (202x204) with 5,600 agents x 5,000 steps.
 
+Refit of the free-flow estimate's congested-layout share (``BENCH_SCREEN_PARTS=fit_congested``,
+not in the default set: RHCR on the generator's seed-0 set, about 1.5 CPU-hours unless
+``BENCH_SCREEN_RHCR_CACHE_SEED0`` holds it): prints the refitted coefficients beside
+:data:`nca_qd.sim.free_flow.CONGESTED_MODEL` and both estimates' held-out Spearman on the
+seed-1 set.
+
 Fidelity at a large size (``BENCH_SCREEN_PARTS=fidelity_large``, not in the default set: about
 2 CPU-hours at 101x102): every layout JSON of ``BENCH_SCREEN_LAYOUTS`` (a directory, e.g. an
 evaluation's ``layouts/``; ``*_unrepaired.json`` skipped) with ``BENCH_SCREEN_LARGE_AGENTS``
@@ -82,7 +88,7 @@ PBS_MAX_NODES: int | str = int(_NODES) if _NODES.isdigit() else _NODES
 # RHCR's share of free-flow throughput where it flows (warehouse even, 33x36, 200 agents),
 # measured on the warehouse search's memo; the screen's scale for congested runs.
 EFFICIENCY = float(os.environ.get("BENCH_SCREEN_EFFICIENCY", 0.932))
-CONGESTED_SCALE = 1.3
+CONGESTED_SCALE = 1.3  # the scaled screen's (eval.screen_scale)
 
 
 def _find(name: str) -> Path | None:
@@ -232,7 +238,7 @@ def _planners() -> list[str]:
 
 
 def screen_figures(layouts, congestion: str, planner: str = "pibt") -> tuple[dict, float]:
-    """name -> list of (throughput, success, mean crowding over the run's checks)."""
+    """name -> list of (throughput, success, mean crowding over the run's checks, stop time / T)."""
     from nca_qd.sim.screen import simulate_batch
 
     t0 = time.perf_counter()
@@ -241,7 +247,7 @@ def screen_figures(layouts, congestion: str, planner: str = "pibt") -> tuple[dic
     )
     wall = time.perf_counter() - t0
     return {
-        name: [[r.throughput, r.success, float(np.mean(r.crowding))] for r in runs]
+        name: [[r.throughput, r.success, float(np.mean(r.crowding)), r.stop_time / T] for r in runs]
         for (name, _), runs in zip(layouts, res)
     }, wall
 
@@ -301,9 +307,9 @@ def fidelity() -> None:
             est = rhcr_estimate(
                 [[r[0] for r in screen[n]] for n in names],
                 [[r[1] for r in screen[n]] for n in names],
+                [[r[3] for r in screen[n]] for n in names],
                 [flow[n] for n in names],
                 EFFICIENCY,
-                CONGESTED_SCALE,
             )
             print(
                 f"spearman of RHCR mean throughput and the screen's free-flow estimate "
@@ -393,10 +399,11 @@ def search_layouts() -> None:
     print(f"screen: {time.perf_counter() - t0:.0f} s wall")
     thr = np.array([[r.throughput for r in row] for row in runs])
     ok = np.array([[r.success for r in row] for row in runs])
+    stop = np.array([[r.stop_time / T for r in row] for row in runs])
     fit, test = np.arange(n) < n // 2, np.arange(n) >= n // 2
     flows = fit & (exact / flow[:, None] > 0.85).all(1)  # all 5 RHCR runs flowed
     eff = float(np.mean(exact[flows] / flow[flows, None]))
-    est = rhcr_estimate(thr, ok, flow, eff, CONGESTED_SCALE)
+    est = rhcr_estimate(thr, ok, stop, flow, eff)
     truth = exact.mean(1)
     top = max(1, test.sum() // 10)
 
@@ -577,6 +584,43 @@ def fidelity_large() -> None:
     )
 
 
+def fit_congested() -> None:
+    """Refit :data:`nca_qd.sim.free_flow.CONGESTED_MODEL`: least squares of RHCR's share of
+    free flow on the layouts of the generator's seed-0 set with a congested screened run, then
+    the held-out Spearman on the seed-1 set (the fidelity part's layouts)."""
+    from nca_qd.sim.free_flow import CONGESTED_MODEL
+
+    def figures(seed: int, cache: str | None):
+        layouts = make_layouts(seed=seed)
+        names = [n for n, _ in layouts]
+        exact = rhcr_figures(layouts, cache)
+        screen, _ = screen_figures(layouts, "crowding")
+        flow = np.array([free_flow_throughput(build_scenario(r, SCENARIO), AGENTS) for _, r in layouts])
+        per_run = np.array([screen[n] for n in names])  # [n, seeds, 4]
+        y = np.array([np.mean([r[0] for r in exact[n]]) for n in names])
+        return per_run[..., 0], per_run[..., 1] > 0.5, per_run[..., 3], flow, y
+
+    cache = os.environ.get("BENCH_SCREEN_RHCR_CACHE")
+    fit_cache = os.environ.get("BENCH_SCREEN_RHCR_CACHE_SEED0")  # the seed-0 set's own cache
+    thr, ok, stop, flow, y = figures(0, fit_cache)
+    some = ~ok.all(1)
+    design = np.column_stack([np.ones(some.sum()), thr[some].mean(1) / flow[some], stop[some].mean(1)])
+    coef, *_ = np.linalg.lstsq(design, y[some] / flow[some], rcond=None)
+    thr1, ok1, stop1, flow1, y1 = figures(1, cache)
+    out = {
+        "fit_layouts": int(some.sum()),
+        "coefficients": [round(float(c), 3) for c in coef],
+        "shipped": list(CONGESTED_MODEL),
+        "held_out_spearman_refit": round(
+            _spearman(y1, rhcr_estimate(thr1, ok1, stop1, flow1, EFFICIENCY, tuple(coef))), 3
+        ),
+        "held_out_spearman_shipped": round(
+            _spearman(y1, rhcr_estimate(thr1, ok1, stop1, flow1, EFFICIENCY)), 3
+        ),
+    }
+    print(json.dumps(out))
+
+
 def main() -> None:
     parts = os.environ.get("BENCH_SCREEN_PARTS", "fidelity,speed").split(",")
     if "scale" in parts:
@@ -589,6 +633,8 @@ def main() -> None:
         search_layouts()
     if "fidelity_large" in parts:
         fidelity_large()
+    if "fit_congested" in parts:
+        fit_congested()
 
 
 if __name__ == "__main__":

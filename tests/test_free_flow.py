@@ -71,10 +71,17 @@ def test_free_flow_bounds_exact_rhcr():
         assert res.throughput > 0.5 * bound  # 8 agents on this map flow
 
 
-def test_rhcr_estimate_takes_free_flow_for_flowing_runs_and_scales_congested_ones():
-    thr = [[4.0, 1.0, 5.0], [2.0, 3.0, 0.5]]
-    ok = [[True, False, True], [False, False, False]]
-    est = rhcr_estimate(thr, ok, free_flow=[7.0, 6.0], efficiency=0.9, congested_scale=1.3)
-    np.testing.assert_allclose(est, [(0.9 * 7.0 * 2 + 1.3 * 1.0) / 3, 1.3 * 5.5 / 3])
+def test_rhcr_estimate_takes_free_flow_where_all_runs_flow_and_the_fitted_share_elsewhere():
+    thr = [[4.0, 4.5, 5.0], [1.0, 2.0, 0.5], [4.0, 4.0, 4.0]]
+    ok = [[True, True, True], [True, False, False], [True, True, False]]
+    stop = [[1.0, 1.0, 1.0], [1.0, 0.2, 0.3], [1.0, 1.0, 0.9]]
+    est = rhcr_estimate(thr, ok, stop, free_flow=[7.0, 6.0, 8.0], efficiency=0.9, congested=(0.3, 2.0, -1.0))
+    share = 0.3 + 2.0 * (3.5 / 3) / 6.0 - 1.0 * 0.5  # 0.1889
+    # the third: 0.3 + 2 * 4 / 8 - 0.9667 = 0.333
+    np.testing.assert_allclose(est, [0.9 * 7.0, share * 6.0, (0.3 + 1.0 - 2.9 / 3) * 8.0])
+    # the share stays within [0, efficiency]
+    high = rhcr_estimate([[6.0, 7.0]], [[True, False]], [[1.0, 0.99]], [7.0], 0.9, congested=(0.3, 2.0, -1.0))
+    low = rhcr_estimate([[0.0, 0.0]], [[False, False]], [[0.1, 0.1]], [7.0], 0.9, congested=(0.0, 1.0, -1.0))
+    np.testing.assert_allclose([high[0], low[0]], [0.9 * 7.0, 0.0])
     with pytest.raises(ValueError, match="runs on the last axis"):
-        rhcr_estimate(np.zeros((2, 0)), np.zeros((2, 0), bool), [7.0, 6.0], 0.9, 1.3)
+        rhcr_estimate(np.zeros((2, 0)), np.zeros((2, 0), bool), np.zeros((2, 0)), [7.0, 6.0], 0.9)

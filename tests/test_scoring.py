@@ -245,7 +245,7 @@ def test_batch_scores_match_independent_recomputation(tiny_scorer, estimate):
     from nca_qd.repair import make_rules
     from nca_qd.repair.validator import check
     from nca_qd.scoring.mapf import ScoringContext
-    from nca_qd.sim.free_flow import free_flow_throughput
+    from nca_qd.sim.free_flow import CONGESTED_MODEL, free_flow_throughput
     from nca_qd.sim.rhcr import simulate
     from nca_qd.sim.scenario import build_scenario
     from nca_qd.sim.screen import simulate_scenarios
@@ -287,7 +287,11 @@ def test_batch_scores_match_independent_recomputation(tiny_scorer, estimate):
             flow = free_flow_throughput(scen, 10)
             scaled = [saved.screen_scale * r.throughput for r in runs]
             if estimate == "free_flow":
-                f = np.mean([efficiency * flow if r.success else s for r, s in zip(runs, scaled)])
+                a, b, c = CONGESTED_MODEL
+                thr_ff = np.mean([r.throughput for r in runs]) / flow
+                stop = np.mean([r.stop_time / 60 for r in runs])
+                share = min(max(a + b * thr_ff + c * stop, 0.0), efficiency)
+                f = flow * (efficiency if all(r.success for r in runs) else share)
             else:
                 f = np.mean(scaled)
         assert ev.objective[i] == pytest.approx(f + 5.0 * ex["similarity"][i], rel=1e-5)

@@ -11,13 +11,14 @@ Per batch (paper §4 with the design's screening step):
    measure the screen; a random ``exact_random_share`` of them is screened for that
    (``screen_empty_cells: true`` screens them all). Early in a search most cells are empty
    and this saves most of the screen's time.
-   The screen's runs predict RHCR's throughput (``screen_estimate``): ``free_flow`` keeps each
-   run's verdict and counts a flowing one as RHCR's share of the layout's free-flow throughput
+   The screen's runs predict RHCR's throughput (``screen_estimate``): ``free_flow`` gives a
+   layout whose screened runs all flowed RHCR's share of its free-flow throughput
    (:func:`nca_qd.sim.free_flow.rhcr_estimate`; the share, ``screen_efficiency``, is
    recalibrated on the search's own flowing exact runs once it has
-   :data:`MIN_CALIBRATION_RUNS`), a congested one ``screen_scale`` x its own; ``scaled``
-   counts every run ``screen_scale`` x its own. On the search's own layouts the first ranks
-   RHCR's throughput far better (``benchmarks/bench_screen.py``, part ``search``).
+   :data:`MIN_CALIBRATION_RUNS`), one with a congested run a share fitted on the screen's
+   throughput and stop times; ``scaled`` counts every run ``screen_scale`` x its own. On the
+   search's own layouts and on held-out ones the first ranks RHCR's throughput better
+   (``benchmarks/bench_screen.py``).
 4. **Exact RHCR** (parallel, on the backend) for the layouts whose predicted throughput
    could place them in the result archive:
    their cell is empty, or ``scaled * (1 + exact_margin) >= `` the cell's elite; plus a random
@@ -258,15 +259,16 @@ class MapfScorer:
 
     def screen_runs(
         self, rows: list[list[str]], seeds: list[int], cap: int | None = None
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Screened throughput and success per layout and seed ``[n, len(seeds)]`` (NaN and
-        False where the screen failed), and with the free-flow estimate each layout's free-flow
-        throughput ``[n]`` (else NaN)."""
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Screened throughput, success and stop time / T per layout and seed
+        ``[n, len(seeds)]`` (NaN, False, NaN where the screen failed), and with the free-flow
+        estimate each layout's free-flow throughput ``[n]`` (else NaN)."""
         from nca_qd.sim.scenario import build_scenario
         from nca_qd.sim.screen import simulate_scenarios
 
         thr = np.full((len(rows), len(seeds)), np.nan)
         ok = np.zeros((len(rows), len(seeds)), bool)
+        stop = np.full((len(rows), len(seeds)), np.nan)
         flow = np.full(len(rows), np.nan)
         scens, keep = [], []
         for i, r in enumerate(rows):
@@ -284,9 +286,10 @@ class MapfScorer:
             res = simulate_scenarios(padded, self.n_agents, self.T, seeds)[:n]
             thr[keep] = [[r.throughput for r in row] for row in res]
             ok[keep] = [[r.success for r in row] for row in res]
+            stop[keep] = [[r.stop_time / self.T for r in row] for row in res]
             if self.cfg.screen_estimate == "free_flow":
                 flow[keep] = [free_flow_throughput(s, self.n_agents) for s in scens]
-        return thr, ok, flow
+        return thr, ok, stop, flow
 
     def free_flow(self, rows: list[list[str]]) -> np.ndarray:
         """Free-flow throughput per layout ``[n]`` (NaN where the scenario is rejected)."""
@@ -296,7 +299,7 @@ class MapfScorer:
         for i, r in enumerate(rows):
             try:
                 out[i] = free_flow_throughput(
-                    build_scenario(r, self.domain.name, self.n_agents), self.n_agents
+                    build_scenario(r, self.domain.name, n_agents=self.n_agents), self.n_agents
                 )
             except NcaQdError:
                 pass
@@ -499,12 +502,14 @@ class MapfScorer:
         sel = np.flatnonzero(to_screen)
         if sel.size:
             first, inverse = self._distinct([w.keys[i] for i in sel])
-            thr, ok, flow = self.screen_runs([w.rows[sel[j]] for j in first], w.seeds, cap=len(w.layouts))
+            thr, ok, stop, flow = self.screen_runs(
+                [w.rows[sel[j]] for j in first], w.seeds, cap=len(w.layouts)
+            )
             w.screened[sel] = thr.mean(axis=1)[inverse]
             w.free_flow[sel] = flow[inverse]
             if self.cfg.screen_estimate == "free_flow":
                 # a rejected scenario has NaN runs and free flow: its estimate stays NaN
-                estimate = rhcr_estimate(thr, ok, flow, self.efficiency, self.cfg.screen_scale)
+                estimate = rhcr_estimate(thr, ok, stop, flow, self.efficiency)
                 w.predicted[sel] = np.where(np.isnan(thr).any(axis=1), np.nan, estimate)[inverse]
             else:
                 w.predicted[sel] = w.screened[sel] * self.cfg.screen_scale

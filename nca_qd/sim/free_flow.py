@@ -14,10 +14,10 @@ how much that costs depends on the aisles). On the search's own layouts, which m
 free flow ranks RHCR's throughput better than the screen's own throughput does (150 random
 layouts of the warehouse search's memo, ``bench_screen``'s ``search`` part: Spearman 0.90
 against 0.60).
-The screen is kept for what free flow cannot know: whether a layout congests.
-:func:`rhcr_estimate` therefore takes each screened run's verdict and replaces a flowing run's
-throughput by ``efficiency * free flow``; a congested run keeps its own throughput (tasks done
-before the stop, over T), scaled like RHCR's.
+The screen is kept for what free flow cannot know: whether a layout congests, and how badly.
+:func:`rhcr_estimate` gives a layout whose screened runs all flowed ``efficiency * free flow``;
+a layout with a congested screened run gets a fitted share of free flow from the screen's
+mean throughput and mean stop time (both over free flow / T), capped at ``efficiency``.
 """
 
 from __future__ import annotations
@@ -29,7 +29,15 @@ from scipy.sparse.csgraph import shortest_path
 
 from nca_qd.sim.scenario import Scenario
 
-__all__ = ["mean_leg_cost", "free_flow_throughput", "rhcr_estimate"]
+__all__ = ["mean_leg_cost", "free_flow_throughput", "rhcr_estimate", "CONGESTED_MODEL"]
+
+# RHCR's share of free flow on a layout with a congested screened run (of 5; PIBT screen,
+# crowding rule): a + b * mean screened throughput / free flow + c * mean stop time / T.
+# Least squares on the 30 such layouts of benchmarks/bench_screen.py's generator with seed 0
+# (RHCR: 5 seeds, 200 agents, T=1,000, warehouse_even, pbs_max_nodes=2000); held out, on the
+# generator's seed-1 set (the bench's fidelity figures), Spearman of RHCR's mean throughput
+# against the estimate 0.801 (each congested run 1.3 x its own throughput) -> 0.875.
+CONGESTED_MODEL = (0.313, 4.882, -2.644)
 
 
 def _grid_graph(traversable: np.ndarray) -> tuple[csr_matrix, np.ndarray]:
@@ -72,15 +80,26 @@ def free_flow_throughput(scen: Scenario, n_agents: int) -> float:
 
 
 def rhcr_estimate(
-    throughput: ArrayLike, success: ArrayLike, free_flow: ArrayLike, efficiency: float, congested_scale: float
+    throughput: ArrayLike,
+    success: ArrayLike,
+    stop_fraction: ArrayLike,
+    free_flow: ArrayLike,
+    efficiency: float,
+    congested: tuple[float, float, float] = CONGESTED_MODEL,
 ) -> np.ndarray:
     """RHCR's mean throughput estimated from screened runs ``[..., runs]`` of layouts ``[...]``
-    (their ``free_flow``): a run that flowed counts ``efficiency * free_flow``, a congested one
-    ``congested_scale`` times its own throughput; the mean over the last axis. ``efficiency``
-    is RHCR's share of free flow where it flows (a calibrated constant of the domain and
-    density); ``congested_scale`` the screen's usual scale."""
+    (their throughput, verdict and stop time / T; the layouts' ``free_flow``). All runs flowed:
+    ``efficiency * free_flow`` (``efficiency``: RHCR's share of free flow where it flows, a
+    calibrated constant of the domain and density). Otherwise ``free_flow`` times
+    ``a + b * mean(throughput) / free_flow + c * mean(stop_fraction)`` (``congested``), kept
+    within ``[0, efficiency]``."""
     thr, ok = np.asarray(throughput, dtype=float), np.asarray(success, dtype=bool)
-    if thr.shape != ok.shape or thr.ndim == 0 or thr.shape[-1] == 0:
-        raise ValueError(f"rhcr_estimate needs runs on the last axis, got {thr.shape} and {ok.shape}")
-    flowing = efficiency * np.asarray(free_flow, dtype=float)[..., None]
-    return np.where(ok, flowing, congested_scale * thr).mean(-1)
+    stop = np.asarray(stop_fraction, dtype=float)
+    if thr.shape != ok.shape or thr.shape != stop.shape or thr.ndim == 0 or thr.shape[-1] == 0:
+        raise ValueError(
+            f"rhcr_estimate needs runs on the last axis, got {thr.shape}, {ok.shape} and {stop.shape}"
+        )
+    flow = np.asarray(free_flow, dtype=float)
+    a, b, c = congested
+    share = np.clip(a + b * thr.mean(-1) / flow + c * stop.mean(-1), 0.0, efficiency)
+    return flow * np.where(ok.all(-1), efficiency, share)
