@@ -32,7 +32,10 @@ from omegaconf import OmegaConf
 from experiments.cli import compose_config, main_guard, take_domain
 from nca_qd.errors import NcaQdError
 
-INTERRUPTED = "finished exact runs are kept in <out>/exact_runs.jsonl; the same command goes on from them"
+INTERRUPTED = (
+    "finished exact runs and screened batches are kept in <out>/exact_runs.jsonl and "
+    "<out>/screen_runs.jsonl; the same command goes on from them"
+)
 
 
 def main(argv: list[str]) -> int:

@@ -435,6 +435,7 @@ def tiny_run(tmp_path_factory):
         ("select_by", "select.by must be s or s_eval, got 'best'"),
         ("select_pool", "elites (3) exceeds select.pool (2)"),
         ("select_list", "elites must be a count"),
+        ("screen_reuse", "screen.reuse must be true or false, got 'sometimes'"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(case, expect, tmp_path, tiny_run, monkeypatch, capsys):
@@ -466,6 +467,8 @@ def test_bad_input_is_one_line_and_exit_2(case, expect, tmp_path, tiny_run, monk
         argv += ["select.by=s_eval", "select.pool=2", "elites=3"]
     elif case == "select_list":
         argv += ["select.by=s_eval", "elites=[3,7]"]
+    elif case == "screen_reuse":
+        argv.append("screen.reuse=sometimes")
     elif case == "dask":
         argv += ["eval.scheduler=tcp://127.0.0.1:9", "eval.connect_timeout_s=1"]
     code = run_cli(argv, monkeypatch)
@@ -577,6 +580,30 @@ def test_the_exact_run_record_keys_on_every_input_and_keeps_only_what_it_can_ser
     assert again.get("bare", need_detail=True) is None  # a request for tasks over time reruns it
     assert again.get("slow", need_detail=False) is None  # a timed-out run is tried again
     assert again.get("unknown", need_detail=False) is None
+
+
+def test_the_screen_run_record_keys_on_every_input_and_the_screen_version(tmp_path, monkeypatch):
+    from nca_qd.evaluation.store import ScreenRunStore, screen_run_key
+    from nca_qd.sim import screen
+
+    args = (HUMAN_9x14, "warehouse_even", 8, 40, 0, 5)
+    key = screen_run_key(*args)
+    changed = [
+        ([HUMAN_9x14[0][:-1] + "@", *HUMAN_9x14[1:]], *args[1:]),  # one tile
+        (*args[:2], 9, *args[3:]),  # agents
+        (*args[:4], 1, args[5]),  # the seed
+        (*args[:5], 4),  # replan
+    ]
+    assert len({key, *(screen_run_key(*a) for a in changed)}) == 5
+    for name, value in (("VERSION", screen.VERSION + 1), ("PRIORITY", "age"), ("CONGESTION", "moved")):
+        with monkeypatch.context() as mp:
+            mp.setattr(screen, name, value)
+            assert screen_run_key(*args) != key, name
+    store = ScreenRunStore(tmp_path)
+    store.add(key, ev.SimOutcome("screen", 0, 0.5, True, 40, False, 0.1))
+    got = ScreenRunStore(tmp_path).get(key, need_detail=False)
+    assert got is not None and (got.simulator, got.throughput, got.stop_time) == ("screen", 0.5, 40)
+    assert (tmp_path / "screen_runs.jsonl").is_file() and not (tmp_path / "exact_runs.jsonl").exists()
 
 
 def test_ctrl_c_during_the_screen_stops_the_exact_runs_at_once(monkeypatch):

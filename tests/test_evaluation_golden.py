@@ -133,17 +133,27 @@ def test_every_csv_matches_its_golden_copy(evaluated, name):
     assert_matches_golden(evaluated, name)
 
 
-def test_an_interrupted_evaluation_goes_on_from_its_recorded_exact_runs(evaluated, tmp_path, monkeypatch):
-    """Every exact run is recorded as it ends (exact_runs.jsonl). An evaluation interrupted
-    after two exact runs keeps those two; the same command then runs only the others (a line
-    cut short in the record is skipped) and writes the golden CSVs; a third runs none."""
+def test_an_interrupted_evaluation_goes_on_from_its_recorded_runs(evaluated, tmp_path, monkeypatch):
+    """Every exact run is recorded as it ends (exact_runs.jsonl), every screened batch's runs
+    likewise (screen_runs.jsonl). An evaluation interrupted after two exact runs keeps those
+    two; the same command then runs only the others (a line cut short in the record is
+    skipped), screens nothing again and writes the golden CSVs; a third runs none."""
     from nca_qd.evaluation import runs as runs_module
 
     recorded = (evaluated / "exact_runs.jsonl").read_text().splitlines()
     _, rows = read(evaluated / "runs.csv")
     exact = {(r["layout"], r["size"], r["n_agents"], r["seed"]) for r in rows if r["simulator"] == "rhcr"}
     assert len(recorded) == len(exact) > 2
+    screened = [r for r in rows if r["simulator"] == "screen"]
+    assert len((evaluated / "screen_runs.jsonl").read_text().splitlines()) == len(screened) > 0
     real, calls = runs_module.exact_run, []
+    real_screen, screen_calls = runs_module.screen_group, []
+
+    def counted_screen(*args, **kwargs):
+        screen_calls.append(args)
+        return real_screen(*args, **kwargs)
+
+    monkeypatch.setattr(runs_module, "screen_group", counted_screen)
 
     def interrupted_after_two(*args):
         if len(calls) == 2:
@@ -163,10 +173,13 @@ def test_an_interrupted_evaluation_goes_on_from_its_recorded_exact_runs(evaluate
     assert [json.loads(line)["key"] for line in kept] == [json.loads(line)["key"] for line in recorded[:2]]
     with (out / "exact_runs.jsonl").open("a") as fh:  # a write cut short
         fh.write(recorded[-1][:40])
+    assert screen_calls, "the interrupted evaluation screened its batches"
     monkeypatch.setattr(runs_module, "exact_run", counted)
     for expected_calls in (len(recorded) - 2, 0):
         calls.clear()
+        screen_calls.clear()
         run_evaluation(evaluated.parent, out)
         assert len(calls) == expected_calls
+        assert not screen_calls
         for name in csv_files(GOLDEN):
             assert_matches_golden(out, name)

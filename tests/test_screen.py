@@ -268,3 +268,36 @@ def test_distance_tables_split_over_threads_are_the_same(monkeypatch):
     np.testing.assert_array_equal(one, two)
     for li in range(2):
         np.testing.assert_array_equal(one[li], np.stack([_bfs(grids[li], int(g)) for g in goals[li]]))
+
+
+# The digest of reference runs per screen VERSION: a change to the screen that alters any of
+# them must bump nca_qd.sim.screen.VERSION (recorded evaluation runs of the old version are
+# then not reused) and add the new digest here.
+SCREEN_DIGESTS = {1: "5cdee9f36383286f"}
+
+
+def _screen_digest() -> str:
+    import hashlib
+
+    room = ["w.......w", ".eeeeeee.", ".........", ".eeeeeee."] * 2 + ["w.......w"]
+    runs = [
+        simulate(WAREHOUSE, "warehouse_even", N, T, 0, record_paths=True),
+        simulate(WAREHOUSE, "warehouse_uneven", N, T, 3, record_paths=True),
+        simulate(MANUFACTURING, "manufacturing", N, T, 0, record_paths=True),
+        simulate(room, "warehouse_even", 60, 100, 0, record_paths=True, congestion="crowding"),
+    ]
+    h = hashlib.sha256()
+    for r in runs:
+        h.update(np.asarray([r.stop_time, r.success, r.finished_tasks], np.int64).tobytes())
+        for a in (r.paths, *r.goals, r.tasks_per_step, r.tile_visits):
+            h.update(np.ascontiguousarray(a, dtype=np.int64).tobytes())
+    return h.hexdigest()[:16]
+
+
+def test_the_screen_version_names_its_decisions():
+    """Reference runs (three scenarios, and a run the crowding rule stops) hash to the digest
+    recorded for the screen's VERSION: a change of decisions without a new version fails."""
+    digest = _screen_digest()
+    assert SCREEN_DIGESTS.get(screen.VERSION) == digest, (
+        f"the screen's runs changed (digest {digest}): bump nca_qd.sim.screen.VERSION and record it"
+    )

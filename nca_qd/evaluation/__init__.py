@@ -28,8 +28,9 @@ bottom as the evaluation's steps); one module per step, each usable on its own:
 * :mod:`.selection`: ``select.by=s_eval``, the generators chosen by a screening run at S_eval;
 * :mod:`.layouts`: the run's archive, the layouts generated, tiled, loaded and repaired;
 * :mod:`.runs`: the exact RHCR runs and the screened runs of every (layout, agent count);
-* :mod:`.store`: every exact run recorded as it ends (``exact_runs.jsonl``), reused by the next
-  evaluation into the same folder, so an interrupted one resumes;
+* :mod:`.store`: every exact run recorded as it ends (``exact_runs.jsonl``), every screened
+  batch's runs likewise (``screen_runs.jsonl``), reused by the next evaluation into the same
+  folder, so an interrupted one resumes;
 * :mod:`.stats`: the statistics of a set of runs;
 * :mod:`.tables`: the tables' rows (CSV, Markdown); :mod:`.plots`: the figures;
 * :mod:`.outputs`: every file written, and those an earlier evaluation left behind removed.
@@ -77,7 +78,7 @@ from nca_qd.evaluation.records import (
 from nca_qd.evaluation.runs import exact_run, merge_requests, screen_group, simulate_cells
 from nca_qd.evaluation.selection import Selection, select_scalable, write_selection
 from nca_qd.evaluation.stats import mean_se_ci, request_runs, run_stats
-from nca_qd.evaluation.store import ExactRunStore
+from nca_qd.evaluation.store import ExactRunStore, ScreenRunStore
 from nca_qd.evaluation.tables import LAYOUT_COLUMNS, STAT_COLUMNS, layout_record, markdown_table, write_csv
 
 log = logging.getLogger("nca_qd.evaluate")
@@ -159,6 +160,7 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
         check_agents(layouts, requests, name, tiles)
         cells = merge_requests(requests)
         store = ExactRunStore(out) if ecfg["exact"].get("reuse", True) else None
+        screen_store = ScreenRunStore(out) if ecfg["screen"].get("reuse", True) else None
         if ecfg["screen"]["where"] == "rest":
             for c in cells.values():
                 if c.exact_runs > 0:
@@ -175,6 +177,7 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
             ecfg["screen"],
             bool(ecfg["progress"]),
             store,
+            screen_store,
         )
     finally:
         backend.close()
@@ -197,6 +200,7 @@ __all__ = [
     "EvalLayout",
     "Evaluation",
     "ExactRunStore",
+    "ScreenRunStore",
     "Request",
     "Results",
     "Selection",

@@ -46,9 +46,10 @@ def validated(ecfg: Mapping[str, Any]) -> dict[str, Any]:
     tl = e["exact"].get("time_limit_s")
     if tl is not None and (isinstance(tl, bool) or not isinstance(tl, (int, float)) or tl <= 0):
         raise NcaQdError(f"exact.time_limit_s must be a positive number or null, got {tl!r}")
-    reuse = e["exact"].setdefault("reuse", True)
-    if not isinstance(reuse, bool):
-        raise NcaQdError(f"exact.reuse must be true or false, got {reuse!r}")
+    for part in ("exact", "screen"):
+        reuse = e[part].setdefault("reuse", True)
+        if not isinstance(reuse, bool):
+            raise NcaQdError(f"{part}.reuse must be true or false, got {reuse!r}")
     from nca_qd.sim.rhcr import planner_options
 
     planner_options(e["exact"], "exact.")

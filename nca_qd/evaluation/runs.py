@@ -5,7 +5,9 @@ The requests are merged into one cell per (layout, agent count) (:func:`merge_re
 a background thread; runs recorded in the folder's
 :class:`~nca_qd.evaluation.store.ExactRunStore` are reused, and each new one is recorded as it
 ends) while it screens the cells in this process, in vmapped batches of one shape and agent
-count (:func:`screen_group`). Every run comes back as a
+count (:func:`screen_group`; cells whose runs the folder's
+:class:`~nca_qd.evaluation.store.ScreenRunStore` holds are reused, and each batch's runs are
+recorded as it ends). Every run comes back as a
 :class:`~nca_qd.evaluation.records.SimOutcome`.
 """
 
@@ -21,7 +23,7 @@ import numpy as np
 from nca_qd.errors import NcaQdError
 from nca_qd.evaluation.records import EvalLayout, Request, Results, SimOutcome, format_value, size_str
 from nca_qd.evaluation.stats import run_stats
-from nca_qd.evaluation.store import ExactRunStore, run_key
+from nca_qd.evaluation.store import ExactRunStore, ScreenRunStore, run_key, screen_run_key
 
 log = logging.getLogger("nca_qd.evaluate")
 
@@ -99,11 +101,13 @@ def simulate_cells(
     screen_cfg: Mapping[str, Any],
     progress: bool = True,
     store: ExactRunStore | None = None,
+    screen_store: ScreenRunStore | None = None,
 ) -> Results:
     """Run every cell: exact runs as backend jobs (in a background thread, so they overlap
     the screening), screening runs batched by (shape, agent count) in this process.
     With a ``store``, exact runs it holds are reused and every new one is recorded in it as it
-    finishes. Returns ``results[(layout, n_agents, simulator)]``: outcomes in seed order."""
+    finishes; likewise screened runs with a ``screen_store`` (recorded per batch).
+    Returns ``results[(layout, n_agents, simulator)]``: outcomes in seed order."""
     from concurrent.futures import ThreadPoolExecutor
 
     from nca_qd.io import array_to_rows
@@ -155,7 +159,9 @@ def simulate_cells(
             log.info("%d exact RHCR run(s) (T=%d) submitted to %s", len(jobs), T, backend.describe())
             future = pool.submit(map_jobs, backend, exact_run, jobs, record)
         try:
-            _screen_cells(cells, layouts, rows, scenario, T, seed0, screen_cfg, progress, results)
+            _screen_cells(
+                cells, layouts, rows, scenario, T, seed0, screen_cfg, progress, results, screen_store
+            )
             if future is not None:
                 if not future.done():
                     log.info("screening done; waiting for the exact runs")
@@ -184,9 +190,16 @@ def _screen_cells(
     screen_cfg: Mapping[str, Any],
     progress: bool,
     results: Results,
+    store: ScreenRunStore | None = None,
 ) -> None:
-    """Every cell's screening runs, batched by (shape, agent count), into ``results``."""
+    """Every cell's screening runs, batched by (shape, agent count), into ``results``; a cell
+    whose runs ``store`` holds is not screened again, and each batch's runs go into it."""
     from tqdm import tqdm
+
+    replan = int(screen_cfg.get("replan", 5))
+
+    def key_of(c: Request, seed: int) -> str:
+        return screen_run_key(rows[c.layout], scenario, c.n_agents, T, seed, replan)
 
     groups: dict[tuple[tuple[int, int], int], list[Request]] = {}
     for (key, n), c in cells.items():
@@ -199,11 +212,28 @@ def _screen_cells(
         unit="cell",
         dynamic_ncols=True,
     )
+    reused = 0
     for (shape, n), group in sorted(groups.items(), key=lambda kv: (kv[0][0], kv[0][1])):
         bar.set_postfix(size=size_str(shape), agents=n)
-        for c, outs in zip(group, screen_group(group, rows, scenario, n, T, seed0, screen_cfg)):
-            results[(c.layout, n, "screen")] = outs
+        known: dict[str, list[SimOutcome]] = {}
+        if store is not None:
+            for c in group:
+                outs = [store.get(key_of(c, seed0 + i), c.detail) for i in range(c.screen_runs)]
+                if all(o is not None for o in outs):
+                    known[c.layout] = [o for o in outs if o is not None]
+                    reused += len(outs)
+        todo = [c for c in group if c.layout not in known]
+        fresh = screen_group(todo, rows, scenario, n, T, seed0, screen_cfg) if todo else []
+        for c, outs in zip(todo, fresh):
+            if store is not None:
+                for o in outs:
+                    store.add(key_of(c, o.seed), o)
+            known[c.layout] = outs
+        for c in group:  # in the group's order, reused or not
+            results[(c.layout, n, "screen")] = known[c.layout]
         bar.update(len(group))
+    if reused and store is not None:
+        log.info("%d screened run(s) reused from %s", reused, store.path)
     bar.close()
 
 

@@ -1,17 +1,21 @@
-"""A record of exact RHCR runs that outlives one evaluation: ``<out>/exact_runs.jsonl``.
+"""Records of runs that outlive one evaluation: ``<out>/exact_runs.jsonl`` (exact RHCR) and
+``<out>/screen_runs.jsonl`` (the screen).
 
-Exact runs at S_eval cost minutes each, so the paper's protocol (20 runs per layout at 1,400
-agents, T=5,000) may take more than one sitting. Every exact run is appended to this file the
-moment it finishes (one JSON line, flushed to disk), and a later evaluation into the same
-folder reuses every recorded run whose inputs are identical, so an interrupted evaluation
-(Ctrl-C, SIGTERM, a lost machine once the file is committed) loses at most the runs in flight.
+Exact runs at S_eval cost minutes each, and the screened curves at S_eval hours of batches,
+so the paper's protocol (20 runs per layout at 1,400 agents, T=5,000, and a curve over 43
+agent counts) may take more than one sitting. Every exact run is appended to its file the
+moment it finishes, every screened batch's runs the moment the batch ends (one JSON line per
+run, flushed to disk), and a later evaluation into the same folder reuses every recorded run
+whose inputs are identical, so an interrupted evaluation (Ctrl-C, SIGTERM, a lost machine once
+the files are committed) loses at most the runs in flight.
 
 A run is keyed by a digest of everything that decides its outcome: the layout's rows, the
-scenario, agent count, T, seed, window, replan, the planner's options and the exact
-simulator's ``VERSION`` — so a repaired layout that differs by one tile, or a revised planner,
-never reuses an old run. Runs that timed out or failed are not reused (a new attempt may
-succeed); a run recorded without its per-step detail does not serve a request that needs it.
-A truncated last line (a write cut short) is skipped with a warning.
+scenario, agent count, T, seed, replan, for RHCR the window and the planner's options, for the
+screen its planner, agent order and congestion rule, and the simulator's ``VERSION`` — so a
+repaired layout that differs by one tile, or a revised simulator, never reuses an old run. (A
+screened run does not depend on the batch it ran in.) Runs that timed out or failed are not
+reused (a new attempt may succeed); a run recorded without its per-step detail does not serve
+a request that needs it. A truncated last line (a write cut short) is skipped with a warning.
 """
 
 from __future__ import annotations
@@ -34,6 +38,7 @@ from nca_qd.evaluation.records import SimOutcome
 log = logging.getLogger("nca_qd.evaluate")
 
 FILENAME = "exact_runs.jsonl"
+SCREEN_FILENAME = "screen_runs.jsonl"
 
 
 def run_key(
@@ -63,6 +68,26 @@ def run_key(
     return hashlib.sha256(json.dumps(spec, sort_keys=True, default=str).encode()).hexdigest()[:32]
 
 
+def screen_run_key(rows: Sequence[str], scenario: str, n_agents: int, T: int, seed: int, replan: int) -> str:
+    """Digest of a screened run's inputs (the screen's default planner, agent order and
+    congestion rule, and its version): equal keys, equal runs."""
+    from nca_qd.sim import screen
+
+    spec = {
+        "rows": list(rows),
+        "scenario": scenario,
+        "n_agents": int(n_agents),
+        "T": int(T),
+        "seed": int(seed),
+        "replan": int(replan),
+        "planner": screen.PLANNER,
+        "priority": screen.PRIORITY,
+        "congestion": screen.CONGESTION,
+        "screen_version": int(screen.VERSION),
+    }
+    return hashlib.sha256(json.dumps(spec, sort_keys=True).encode()).hexdigest()[:32]
+
+
 def _pack(a: np.ndarray | None) -> dict[str, Any] | None:
     if a is None:
         return None
@@ -81,11 +106,15 @@ def _unpack(d: Mapping[str, Any] | None) -> np.ndarray | None:
     return np.frombuffer(raw, dtype=np.dtype(d["dtype"])).reshape(d["shape"]).copy()
 
 
-class ExactRunStore:
-    """The runs recorded in one evaluation folder, loaded once; :meth:`add` appends."""
+class RunStore:
+    """The runs of one simulator recorded in one evaluation folder, loaded once; :meth:`add`
+    appends."""
+
+    filename = FILENAME
+    simulator = "rhcr"
 
     def __init__(self, out: Path):
-        self.path = Path(out) / FILENAME
+        self.path = Path(out) / self.filename
         self._runs: dict[str, dict[str, Any]] = {}
         self._lock = threading.Lock()
         self._open_line = False  # the file ends inside a line (a write cut short)
@@ -109,7 +138,7 @@ class ExactRunStore:
         if bad:
             log.warning("%s: %d unreadable line(s) skipped (a write cut short?)", self.path, bad)
         if self._runs:
-            log.info("%s: %d recorded exact run(s)", self.path, len(self._runs))
+            log.info("%s: %d recorded run(s)", self.path, len(self._runs))
 
     def __len__(self) -> int:
         return len(self._runs)
@@ -122,7 +151,7 @@ class ExactRunStore:
         if need_detail and not rec.get("detail"):
             return None
         return SimOutcome(
-            "rhcr",
+            self.simulator,
             int(rec["seed"]),
             float(rec["throughput"]),
             bool(rec["success"]),
@@ -164,3 +193,14 @@ class ExactRunStore:
                 fh.flush()
                 os.fsync(fh.fileno())
             self._runs[key] = rec
+
+
+class ExactRunStore(RunStore):
+    """Exact RHCR runs: ``exact_runs.jsonl``, keyed by :func:`run_key`."""
+
+
+class ScreenRunStore(RunStore):
+    """Screened runs: ``screen_runs.jsonl``, keyed by :func:`screen_run_key`."""
+
+    filename = SCREEN_FILENAME
+    simulator = "screen"

@@ -82,6 +82,10 @@ __all__ = [
     "goal_log",
 ]
 
+# The screen's decisions: bump whenever a change alters any run's outcome (the evaluation's
+# screen_runs.jsonl reuses recorded runs of the same version; tests/test_screen.py holds the
+# digest of reference runs per version).
+VERSION = 1
 INF16 = 30000  # "unreachable" in the int16 distance table
 PRIORITY = "random"  # "random": fresh random agent order each step; "age": PIBT's (steps
 # since the last finished goal, fixed random tie-break)
