@@ -563,6 +563,9 @@ def test_the_exact_run_record_keys_on_every_input_and_keeps_only_what_it_can_ser
     assert len({key, *(run_key(*a) for a in changed)}) == 4
     monkeypatch.setattr(rhcr, "VERSION", rhcr.VERSION + 1)
     assert run_key(*args) != key  # a revised simulator
+    monkeypatch.setattr(rhcr, "VERSION", 1)
+    # recorded files hold these keys: the digest must not drift with a refactor
+    assert run_key(*args) == "3b0a1e335a9a2af27f08b9b83f19575c"
     monkeypatch.undo()
 
     store = ExactRunStore(tmp_path)
@@ -599,6 +602,11 @@ def test_the_screen_run_record_keys_on_every_input_and_the_screen_version(tmp_pa
         with monkeypatch.context() as mp:
             mp.setattr(screen, name, value)
             assert screen_run_key(*args) != key, name
+    with monkeypatch.context() as mp:  # recorded files hold these keys: pinned against drift
+        pinned = {"VERSION": 1, "PLANNER": "pibt", "PRIORITY": "random", "CONGESTION": "crowding"}
+        for name, value in pinned.items():
+            mp.setattr(screen, name, value)
+        assert screen_run_key(*args) == "f490bfb73186cb2d981970e7b69be5c5"
     store = ScreenRunStore(tmp_path)
     store.add(key, ev.SimOutcome("screen", 0, 0.5, True, 40, False, 0.1))
     got = ScreenRunStore(tmp_path).get(key, need_detail=False)

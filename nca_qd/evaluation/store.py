@@ -65,7 +65,7 @@ def run_key(
         "planner": {k: planner[k] for k in sorted(planner or {})},
         "rhcr_version": int(VERSION),
     }
-    return hashlib.sha256(json.dumps(spec, sort_keys=True, default=str).encode()).hexdigest()[:32]
+    return _digest(spec)
 
 
 def screen_run_key(rows: Sequence[str], scenario: str, n_agents: int, T: int, seed: int, replan: int) -> str:
@@ -85,7 +85,13 @@ def screen_run_key(rows: Sequence[str], scenario: str, n_agents: int, T: int, se
         "congestion": screen.CONGESTION,
         "screen_version": int(screen.VERSION),
     }
-    return hashlib.sha256(json.dumps(spec, sort_keys=True).encode()).hexdigest()[:32]
+    return _digest(spec)
+
+
+def _digest(spec: Mapping[str, Any]) -> str:
+    """First 32 hex digits of the SHA-256 of ``spec`` as sorted-key JSON (values JSON cannot
+    hold are written with ``str``); the recorded files' keys depend on this staying as it is."""
+    return hashlib.sha256(json.dumps(spec, sort_keys=True, default=str).encode()).hexdigest()[:32]
 
 
 def _pack(a: np.ndarray | None) -> dict[str, Any] | None:
