@@ -47,6 +47,26 @@ def test_out_of_range_measures_land_in_border_cells():
     np.testing.assert_array_equal(cells, [0 * 4 + 2, 15])
 
 
+@pytest.mark.parametrize(
+    "cells, ranges, values",
+    [
+        ((100, 100), ((0.0, 1.0), (140.0, 240.0)), np.arange(140, 240)),  # warehouse shelf components
+        ((100, 100), ((0.0, 1.0), (0.0, 600.0)), np.arange(0, 600)),  # manufacturing workstations
+        ((256, 162), ((0.0, 256.0), (0.0, 648.0)), np.arange(0, 648)),  # maze path length
+    ],
+)
+def test_integer_measures_land_in_the_cell_whose_lower_edge_they_sit_on(cells, ranges, values):
+    lo, hi = ranges[1]
+    m = jnp.stack([jnp.full(values.size, 0.5), jnp.asarray(values, jnp.float32)], axis=1)
+    got = np.asarray(grid_cell_indices(m, cells, ranges)) % cells[1]
+    # integer arithmetic, no rounding: the cell of v is floor((v - lo) * n / (hi - lo))
+    want = ((values - int(lo)) * cells[1]) // int(hi - lo)
+    np.testing.assert_array_equal(got, want)
+    ribs_archives = pytest.importorskip("ribs.archives")
+    ribs = ribs_archives.GridArchive(solution_dim=1, dims=list(cells), ranges=list(ranges))
+    np.testing.assert_array_equal(np.asarray(ribs.int_to_grid_index(ribs.index_of(m)))[:, 1], want)
+
+
 @settings(max_examples=15, deadline=None)
 @given(st.integers(0, 10_000), st.sampled_from([0.01, 0.3, 1.0]), st.sampled_from([0.0, -np.inf]))
 def test_matches_pyribs_grid_archive_on_identical_batches(seed, lr, tmin):

@@ -271,3 +271,28 @@ def test_a_snapshot_keeps_the_best_result_elites_exact_and_the_rest_close(cma_ma
     assert rest.size and not np.array_equal(h[rest], g[rest])
     span = g[rest].max(axis=1) - g[rest].min(axis=1)
     assert np.all(np.abs(h[rest] - g[rest]).max(axis=1) <= span / 510 * 1.001 + 1e-6)
+
+
+def test_elites_binned_one_cell_low_by_an_older_checkpoint_move_to_their_own_cells():
+    """Checkpoints from before integer measures were binned exactly hold shelf-component counts
+    such as 145 and 150 one cell low; loading puts each elite, with its threshold, in its own
+    cell and leaves the rest where they were."""
+    import jax.numpy as jnp
+
+    from nca_qd.qd.archive import ThresholdRepertoire
+
+    cells, ranges = (2, 100), ((0.0, 1.0), (140.0, 240.0))
+    empty = ThresholdRepertoire.create(3, cells, ranges, 0.5, 0.0)
+    measures = jnp.array([[0.2, 145.0], [0.2, 150.0], [0.7, 151.0]])
+    res, _ = empty.add_with_info(jnp.eye(3), measures, jnp.array([1.0, 2.0, 3.0]))
+    arrays = ck.encode_archives(res, res, ck.CheckpointPolicy(exact=True))
+    right = arrays["res_cells"].copy()
+    np.testing.assert_array_equal(right, [5, 10, 111])
+    for which in ("res", "opt"):  # as the earlier binning stored them
+        arrays[f"{which}_cells"] = np.array([4, 9, 111], np.int32)
+    back, _ = ck.decode_archives(arrays, empty, empty)
+    f = np.asarray(back.fitnesses)[:, 0]
+    np.testing.assert_array_equal(np.flatnonzero(f > -np.inf), right)
+    np.testing.assert_array_equal(f[right], [1.0, 2.0, 3.0])
+    np.testing.assert_array_equal(np.asarray(back.genotypes)[right], np.eye(3))
+    np.testing.assert_allclose(np.asarray(back.thresholds)[right], np.asarray(res.thresholds)[right])

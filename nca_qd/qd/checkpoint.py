@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import io as _io
 import json
+import logging
 import zipfile
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass
@@ -53,7 +54,9 @@ import numpy as np
 from nca_qd.errors import NcaQdError
 from nca_qd.interfaces import CompactEmitter
 from nca_qd.io import atomic_write_bytes
-from nca_qd.qd.archive import ThresholdRepertoire
+from nca_qd.qd.archive import ThresholdRepertoire, grid_cell_indices
+
+log = logging.getLogger(__name__)
 
 FORMAT = "nca-qd sparse checkpoint"
 FORMAT_VERSION = 1
@@ -142,6 +145,9 @@ def _restore_archive(
             f"checkpoint holds {genotypes.shape[1:]} parameters and {measures.shape[1:]} "
             f"measures per elite; this configuration has ({d},) and ({m},)"
         )
+    cells, objective, measures, thresholds, genotypes = _rebin(
+        template, cells, objective, measures, thresholds, genotypes
+    )
     g = np.zeros((n, d), np.float32)
     g[cells] = genotypes
     f = np.full((n, 1), -np.inf, np.float32)
@@ -156,6 +162,37 @@ def _restore_archive(
         descriptors=jnp.asarray(desc),
         thresholds=jnp.asarray(thr),
     )
+
+
+def _rebin(
+    template: ThresholdRepertoire,
+    cells: np.ndarray,
+    objective: np.ndarray,
+    measures: np.ndarray,
+    thresholds: np.ndarray,
+    genotypes: np.ndarray,
+) -> tuple[np.ndarray, ...]:
+    """Elites moved to the cells their measures map to today.
+
+    Checkpoints written before :func:`nca_qd.qd.archive.grid_cell_indices` stopped rounding
+    integer measures into the cell below hold some elites one cell low; each moves, with its
+    threshold, to its own cell (where two meet, the higher objective stays)."""
+    if not cells.size or not template.grid_cells:
+        return cells, objective, measures, thresholds, genotypes
+    now = np.asarray(
+        grid_cell_indices(jnp.asarray(measures, jnp.float32), template.grid_cells, template.grid_ranges)
+    ).astype(cells.dtype)
+    if np.array_equal(now, cells):
+        return cells, objective, measures, thresholds, genotypes
+    order = np.lexsort((-objective, now))  # by cell, best first
+    keep = order[np.r_[True, now[order][1:] != now[order][:-1]]]
+    log.warning(
+        "checkpoint: %d of %d elites re-binned to the cells their measures map to (%d dropped where two met)",
+        int((now != cells).sum()),
+        cells.size,
+        cells.size - keep.size,
+    )
+    return now[keep], objective[keep], measures[keep], thresholds[keep], genotypes[keep]
 
 
 def _store_params(name: str, rows: np.ndarray, dtype: str) -> dict[str, np.ndarray]:
