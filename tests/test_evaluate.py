@@ -436,6 +436,8 @@ def tiny_run(tmp_path_factory):
         ("select_pool", "elites (3) exceeds select.pool (2)"),
         ("select_list", "elites must be a count"),
         ("screen_reuse", "screen.reuse must be true or false, got 'sometimes'"),
+        ("shelves_count", "n_shelves.eval must be an integer >= 1, got 0"),
+        ("shelves_manufacturing", "n_shelves.eval: manufacturing has no shelves"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(case, expect, tmp_path, tiny_run, monkeypatch, capsys):
@@ -469,6 +471,11 @@ def test_bad_input_is_one_line_and_exit_2(case, expect, tmp_path, tiny_run, monk
         argv += ["select.by=s_eval", "elites=[3,7]"]
     elif case == "screen_reuse":
         argv.append("screen.reuse=sometimes")
+    elif case == "shelves_count":
+        argv.append("n_shelves.eval=0")
+    elif case == "shelves_manufacturing":
+        argv[0] = f"run_dir={make_run(tmp_path / 'mf', ['domain=manufacturing'])}"
+        argv.append("n_shelves.eval=2500")
     elif case == "dask":
         argv += ["eval.scheduler=tcp://127.0.0.1:9", "eval.connect_timeout_s=1"]
     code = run_cli(argv, monkeypatch)
@@ -477,6 +484,23 @@ def test_bad_input_is_one_line_and_exit_2(case, expect, tmp_path, tiny_run, monk
     assert len(err.splitlines()) == 1 and "Traceback" not in err, err
     assert err.startswith("error: ") and expect in err, err
     assert not (tmp_path / "o").exists()
+
+
+def test_n_shelves_sets_the_shelf_count_of_its_size_only(tiny_run):
+    """n_shelves.eval (the paper's released S_eval layouts hold 2,500 shelves where its table
+    says 2,250) changes N_s at S_eval; S keeps the run's count."""
+    from nca_qd.evaluation.layouts import repair_opts
+    from nca_qd.evaluation.plan import Plan, validated
+
+    e = validated(
+        OmegaConf.to_container(compose_config("evaluate", [f"run_dir={tiny_run}", "n_shelves.eval=30"]))
+    )
+    d = OmegaConf.to_container(compose_config("run", TINY_RUN).domain, resolve=True)
+    plan = Plan(e, d, "warehouse_even")
+    assert repair_opts(e, d, plan, plan.s_eval)["n_shelves"] == 30
+    assert repair_opts(e, d, plan, plan.s_train)["n_shelves"] == 12
+    e_default = validated(OmegaConf.to_container(compose_config("evaluate", [f"run_dir={tiny_run}"])))
+    assert repair_opts(e_default, d, plan, plan.s_eval)["n_shelves"] == 24
 
 
 def test_too_many_agents_names_the_layout(tiny_run, tmp_path, maps, monkeypatch, capsys):

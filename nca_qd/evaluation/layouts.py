@@ -183,9 +183,10 @@ Repair = Callable[[Any, str, list[tuple[EvalLayout, dict]]], None]
 def repair_opts(
     e: Mapping[str, Any], d: Mapping[str, Any], plan: Plan, shape: tuple[int, int]
 ) -> dict[str, Any]:
-    """Repair options at a full-map size: the run's (train or eval block), N_s of the human
-    layout at other sizes (or ``sizes.n_shelves``), traversable >= the most agents simulated
-    (manufacturing), then this command's ``repair`` overrides."""
+    """Repair options at a full-map size: the run's (train or eval block; N_s from this
+    command's ``n_shelves`` where given), N_s of the human layout at other sizes (or
+    ``sizes.n_shelves``), traversable >= the most agents simulated (manufacturing), then this
+    command's ``repair`` overrides."""
     from nca_qd.scoring.tasks import repair_options
 
     which = plan.which(shape)
@@ -193,8 +194,10 @@ def repair_opts(
     if which == "extra":
         opts.pop("n_shelves", None)
         n_s = size_map(e["sizes"], "n_shelves").get(size_str(shape))
-        if n_s is not None:
-            opts["n_shelves"] = int(n_s)
+    else:
+        n_s = (e.get("n_shelves") or {}).get(which)
+    if n_s is not None:
+        opts["n_shelves"] = int(n_s)
     opts["n_agents"] = max(int(opts.get("n_agents", 0)), plan.most_agents(shape))
     opts.update({k: v for k, v in (e.get("repair") or {}).items() if v is not None})
     return opts

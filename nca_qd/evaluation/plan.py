@@ -65,6 +65,10 @@ def validated(ecfg: Mapping[str, Any]) -> dict[str, Any]:
             )
         if e["elites"] > sel["pool"]:
             raise NcaQdError(f"elites ({e['elites']}) exceeds select.pool ({sel['pool']})")
+    shelves = e.setdefault("n_shelves", {"train": None, "eval": None})
+    for k in ("train", "eval"):
+        if shelves.get(k) is not None:
+            pos(f"n_shelves.{k}")
     if e["screen"]["where"] not in ("all", "rest"):
         raise NcaQdError(f"screen.where must be all or rest, got {e['screen']['where']!r}")
     for k in ("train", "eval"):
@@ -82,6 +86,9 @@ class Plan:
         self.e, self.d, self.name, self.scales = e, d, name, scales
         self.s_train = full_shape(name, d["size"]["train"])
         self.s_eval = full_shape(name, d["size"]["eval"])
+        shelves = [k for k, v in (e.get("n_shelves") or {}).items() if v is not None]
+        if shelves and get_layout(name).family != "warehouse":
+            raise NcaQdError(f"n_shelves.{shelves[0]}: {name} has no shelves (warehouse domains only)")
         self.n_train = int(e["agents"]["train"] or d["n_agents"]["train"])
         self.n_eval = int(e["agents"]["eval"] or d["n_agents"]["eval"])
         self.sweep_train = agent_range(e["sweep"]["train"], self.n_train, 10, "sweep.train")
