@@ -87,7 +87,7 @@ class Plan:
         self.s_train = full_shape(name, d["size"]["train"])
         self.s_eval = full_shape(name, d["size"]["eval"])
         shelves = [k for k, v in (e.get("n_shelves") or {}).items() if v is not None]
-        if shelves and get_layout(name).family != "warehouse":
+        if shelves and not get_layout(name).construction.exact_count:  # no fixed shelf count N_s
             raise NcaQdError(f"n_shelves.{shelves[0]}: {name} has no shelves (warehouse domains only)")
         self.n_train = int(e["agents"]["train"] or d["n_agents"]["train"])
         self.n_eval = int(e["agents"]["eval"] or d["n_agents"]["eval"])
