@@ -19,23 +19,12 @@ from nca_qd.io import MapFile, array_to_rows, load_map, save_map
 from nca_qd.layouts import LAYOUTS, get_layout
 from nca_qd.repair import make_rules, repair, tiles_of
 from nca_qd.repair.validator import check
+from nca_qd.scoring.tasks import REPAIR_OPTIONS
 
 log = logging.getLogger("nca_qd.repair")
 
 # Repair options: the command line's value, else the domain config's repair block.
-OPTIONS = (
-    "method",
-    "time_limit_s",
-    "improve_time_s",
-    "improve_windows",
-    "window",
-    "window_time_s",
-    "max_window_cells",
-    "max_violation_fraction",
-    "threads",
-    "seed",
-    "milp_time_s",
-)
+OPTIONS = REPAIR_OPTIONS
 
 
 def domain_default(cfg, key: str, n_rows: int):

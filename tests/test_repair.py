@@ -189,3 +189,48 @@ def test_highs_prints_no_banner_into_run_logs():
     code = "from nca_qd.repair.milp import quiet_highs; quiet_highs(); quiet_highs(); print('ok')"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout == "ok\n" and "HiGHS" not in out.stderr
+
+
+def _rows_of_endpoints(n_rows: int = 9, n_cols: int = 8) -> np.ndarray:
+    """A storage area of endpoint rows and no shelves: every valid repair places all N_s shelves,
+    on many equally near sets of cells (the case where the tie-break decides the pattern)."""
+    region = np.zeros((n_rows, n_cols), dtype=np.int32)
+    region[::2] = wh.ENDPOINT
+    return wh.assemble(region)
+
+
+def test_random_tie_break_keeps_the_distance_and_changes_only_the_choice():
+    """tie_break=random: the same proven-optimal distance and Delta as tie_break=none (valid by
+    the independent validator), a different layout among the equally near ones for another seed
+    or input, and the same layout again for the same seed and input."""
+    lay = _rows_of_endpoints()
+    opts = dict(n_shelves=10, method="full", time_limit_s=60)
+    plain = repair("warehouse_even", lay, **opts)
+    runs = [repair("warehouse_even", lay, tie_break="random", seed=s, **opts) for s in (0, 1, 0)]
+    for res in [plain, *runs]:
+        assert_result_ok(res, "warehouse_even", lay, n_shelves=10)
+        assert res.status == "optimal"
+        assert res.hamming == plain.hamming and res.similarity == plain.similarity
+    assert np.array_equal(runs[0].layout, runs[2].layout)
+    layouts = {r.layout.tobytes() for r in [plain, *runs]}
+    assert len(layouts) >= 2
+    # The costs that break ties sum to less than one changed cell, so never outweigh distance.
+    from nca_qd.repair import tie_costs
+
+    costs = tie_costs(lay, make_rules("warehouse_even", lay.shape, n_shelves=10), seed=0)
+    assert 0 < costs.sum() < 1 and (costs >= 0).all()
+
+
+@pytest.mark.parametrize("method", ["neighbourhood", "hybrid"])
+def test_random_tie_break_neighbourhood_methods_stay_valid_and_near(method):
+    lay = _rows_of_endpoints(11, 10)
+    opts = dict(n_shelves=14, method=method, time_limit_s=30, improve_time_s=0.2, seed=2)
+    plain = repair("warehouse_even", lay, **opts)
+    rnd = repair("warehouse_even", lay, tie_break="random", **opts)
+    assert_result_ok(rnd, "warehouse_even", lay, n_shelves=14)
+    assert rnd.layout is not None and rnd.hamming <= plain.hamming + 2
+
+
+def test_unknown_tie_break_is_refused():
+    with pytest.raises(Exception, match="unknown tie_break 'maybe'"):
+        repair("warehouse_even", _rows_of_endpoints(), n_shelves=4, tie_break="maybe")

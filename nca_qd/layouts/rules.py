@@ -48,6 +48,9 @@ class Rules:
     fixed: ``[h, w]`` bool, cells that must keep ``fixed_layout``'s tile; ``fixed_layout`` is
         ``None`` when nothing is fixed.
     weights: per-cell Hamming weights are ``weight_of_input[input tile]`` (paper's p_i).
+    tie_costs: optional ``[h, w]`` extra cost of changing each cell, summing to less than 1 over
+        the layout: the solvers minimise ``weights + tie_costs``, so it only decides between
+        layouts equally near in weighted Hamming distance (see ``repair(tie_break=)``).
     """
 
     tiles: str
@@ -59,6 +62,7 @@ class Rules:
     fixed: np.ndarray
     fixed_layout: np.ndarray | None
     weight_of_input: tuple[int, ...] = field(default=())
+    tie_costs: np.ndarray | None = None
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -69,6 +73,11 @@ class Rules:
         if not self.weight_of_input:
             return np.ones(layout_in.shape, dtype=np.int64)
         return np.asarray(self.weight_of_input, dtype=np.int64)[layout_in]
+
+    def objective_weights(self, layout_in: np.ndarray) -> np.ndarray:
+        """What the solvers minimise per changed cell: the weights p_i plus the tie costs."""
+        weights = self.cell_weights(layout_in)
+        return weights if self.tie_costs is None else weights + self.tie_costs
 
     def passable_mask(self, layout: np.ndarray) -> np.ndarray:
         return np.isin(layout, list(self.passable))

@@ -17,6 +17,14 @@
   the machine's load) hybrid is the neighbourhood repair alone: the MILP's time is not a work
   limit.
 
+Ties: many valid layouts are often equally near (a generator that leaves every shelf to the
+repair has thousands). ``tie_break="none"`` takes the one the solvers' own order reaches first:
+deterministic and regular (the greedy fills rows in order), so a search can learn to leave the
+pattern to the repair. ``tie_break="random"`` prefers among equally near layouts by small
+random costs drawn per layout (seeded by ``seed`` and the layout's bytes: the same input gets
+the same repair), the paper's "MILP solver arbitrarily selects an optimal solution when
+multiple solutions exist"; distances, ``optimal`` and Delta are unchanged by it.
+
 Statuses: ``optimal`` (proven), ``feasible`` (valid, optimality not proven: time limit or
 neighbourhood search), ``infeasible`` (proven that no valid layout exists), ``no_solution``
 (nothing valid found in time). In the QD loop a generator whose repair has no layout gets the
@@ -25,7 +33,9 @@ lowest objective and is not inserted (``EvalBatch.valid = False``); the run goes
 
 from __future__ import annotations
 
+import dataclasses
 import time
+import zlib
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -40,6 +50,7 @@ from nca_qd.repair.neighbourhood import lower_bound, repair_neighbourhood, weigh
 from nca_qd.repair.validator import check, is_valid
 
 METHODS = ("neighbourhood", "full", "hybrid")
+TIE_BREAKS = ("none", "random")
 
 
 @dataclass
@@ -106,13 +117,18 @@ def repair(
     n_shelves: int | None = None,
     n_agents: int = 200,
     milp_time_s: float = 2.0,
+    tie_break: str = "none",
 ) -> RepairResult:
     """Repair a full layout (indices into :func:`tiles_of`); see the module docstring."""
     t0 = time.perf_counter()
     if method not in METHODS:
         raise NcaQdError(f"unknown repair method {method!r} (known: {', '.join(METHODS)})")
+    if tie_break not in TIE_BREAKS:
+        raise NcaQdError(f"unknown tie_break {tie_break!r} (known: {', '.join(TIE_BREAKS)})")
     layout = np.asarray(layout, dtype=np.int32)
     rules = make_rules(domain_name, layout.shape, n_shelves=n_shelves, n_agents=n_agents)
+    if tie_break == "random":
+        rules = dataclasses.replace(rules, tie_costs=tie_costs(layout, rules, seed))
     get_layout(domain_name).check_frame(layout, "layout")
     greedy = _greedy_for(domain_name, rules, n_agents)
     improve_time_s = resolve_improve_time(improve_time_s, int((~rules.fixed).sum()))
@@ -161,6 +177,15 @@ def repair(
         method=method,
         details=details,
     )
+
+
+def tie_costs(layout: np.ndarray, rules: Rules, seed: int) -> np.ndarray:
+    """Random costs of changing each free cell, summing to less than 1 (so below any difference
+    in the integer weighted distance), drawn from ``seed`` and the layout's bytes."""
+    layout = np.ascontiguousarray(layout, dtype=np.int32)
+    rng = np.random.default_rng([int(seed), zlib.crc32(layout.tobytes()), *layout.shape])
+    free = ~rules.fixed
+    return np.where(free, rng.random(layout.shape), 0.0) / (int(free.sum()) + 1)
 
 
 def resolve_improve_time(value: float | str | None, n_free: int) -> float:

@@ -52,7 +52,7 @@ class _State:
         self.tile = np.where(self.free, empty, base).astype(np.int32)
         self.passable = rules.passable_mask(self.tile)
         self.n_anchor_nb = np.zeros(layout_in.shape, dtype=np.int32)  # anchors among neighbours
-        self.weights = rules.cell_weights(layout_in)
+        self.weights = rules.objective_weights(layout_in)
         self.in_endpoint = layout_in == endpoint
 
     def nbrs(self, r: int, c: int):

@@ -168,7 +168,7 @@ def solve_window(
     s0 = y0 + (n if use_source_vars else 0)
     n_cols = s0 + (n if use_source_vars else 0)
 
-    weights = rules.cell_weights(layout_in)
+    weights = rules.objective_weights(layout_in)
     cost = np.zeros(n_cols)
     offset = 0.0
     for i, (r, c) in enumerate(cells):
@@ -324,7 +324,10 @@ def solve_window(
     for i, (r, c) in enumerate(cells):
         new[r, c] = free[int(np.argmax(x[i]))]
     label = "optimal" if status == highspy.HighsModelStatus.kOptimal else "feasible"
-    return WindowResult(label, new, float(info.objective_function_value), seconds, n)
+    # The window's weighted Hamming distance (the solver's objective less any tie costs).
+    p = rules.cell_weights(layout_in)
+    distance = float(sum(p[r, c] for r, c in cells if new[r, c] != layout_in[r, c]))
+    return WindowResult(label, new, distance, seconds, n)
 
 
 def _warm_start(current, cells, cid, edges, n, n_nodes, source, free, rules, K, n_cols, f0, y0, s0):

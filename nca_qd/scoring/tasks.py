@@ -18,6 +18,7 @@ import numpy as np
 # The domain config's repair keys that :func:`nca_qd.repair.repair` takes as options.
 REPAIR_OPTIONS = (
     "method",
+    "tie_break",
     "time_limit_s",
     "improve_time_s",
     "improve_windows",
