@@ -503,6 +503,23 @@ def test_n_shelves_sets_the_shelf_count_of_its_size_only(tiny_run):
     assert repair_opts(e_default, d, plan, plan.s_eval)["n_shelves"] == 24
 
 
+def test_repair_tie_break_comes_from_the_run_unless_this_command_overrides_it(tiny_run):
+    """A run repaired with tie_break=none is evaluated with none (its own repair); the
+    command's repair.tie_break=random overrides it at every size."""
+    from nca_qd.evaluation.layouts import repair_opts
+    from nca_qd.evaluation.plan import Plan, validated
+
+    def opts(cmd: list[str], run: list[str]) -> list[str]:
+        e = validated(OmegaConf.to_container(compose_config("evaluate", [f"run_dir={tiny_run}", *cmd])))
+        d = OmegaConf.to_container(compose_config("run", [*TINY_RUN, *run]).domain, resolve=True)
+        plan = Plan(e, d, "warehouse_even")
+        return [repair_opts(e, d, plan, s)["tie_break"] for s in (plan.s_train, plan.s_eval)]
+
+    assert opts([], ["domain.repair.tie_break=none"]) == ["none", "none"]
+    assert opts([], []) == ["random", "random"]  # the domains' default
+    assert opts(["repair.tie_break=random"], ["domain.repair.tie_break=none"]) == ["random", "random"]
+
+
 def test_too_many_agents_names_the_layout(tiny_run, tmp_path, maps, monkeypatch, capsys):
     code = run_cli(
         [
