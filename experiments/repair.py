@@ -23,9 +23,6 @@ from nca_qd.scoring.tasks import REPAIR_OPTIONS
 
 log = logging.getLogger("nca_qd.repair")
 
-# Repair options: the command line's value, else the domain config's repair block.
-OPTIONS = REPAIR_OPTIONS
-
 
 def domain_default(cfg, key: str, n_rows: int):
     """The domain's repair setting; a per-size one (``{train: .., eval: ..}``) is taken for the
@@ -50,7 +47,7 @@ def main(argv: list[str]) -> int:
     layout = mapfile.to_array(tiles)
     opts = {
         key: (cfg[key] if cfg[key] is not None else domain_default(cfg, key, layout.shape[0]))
-        for key in OPTIONS
+        for key in REPAIR_OPTIONS  # the command line's value, else the domain's repair block
     }
     opts = {key: value for key, value in opts.items() if value is not None}
     try:
