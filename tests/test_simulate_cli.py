@@ -104,6 +104,7 @@ def test_prints_one_line_per_run_and_a_summary(tmp_path):
         (WAREHOUSE, ["pbs_max_nodes=-3"], "pbs_max_nodes must be a positive integer, auto or null"),
         (WAREHOUSE, ["plan_time_limit_s=0"], "plan_time_limit_s must be a positive number"),
         (WAREHOUSE, ["prioritize_start=maybe"], "prioritize_start must be true or false"),
+        (WAREHOUSE, ["starts=fixed"], "starts must be one of random, reference, got 'fixed'"),
     ],
 )
 def test_bad_input_is_one_line_exit_2(tmp_path, rows, args, message):
@@ -130,3 +131,34 @@ def test_time_limit_says_timed_out(tmp_path):
     assert proc.returncode == 0, proc.stderr
     run = json.loads(proc.stdout.splitlines()[0])
     assert run["timed_out"] and not run["success"] and run["stop_time"] < 100000
+
+
+def test_reference_starts_are_one_configuration_for_every_seed(tmp_path):
+    layout = write_map(tmp_path / "wh.json", WAREHOUSE)
+    starts = {}
+    for mode in ("reference", "random"):
+        out = tmp_path / f"{mode}.npz"
+        proc = run_cli(
+            f"layout={layout}",
+            "agents=12",
+            "T=10",
+            "seeds=3",
+            f"starts={mode}",
+            f"paths_out={out}",
+            cwd=tmp_path,
+        )
+        assert proc.returncode == 0, proc.stderr
+        data = np.load(out)
+        starts[mode] = [data[f"paths_seed{s}"][0] for s in range(3)]
+    assert all((s == starts["reference"][0]).all() for s in starts["reference"])
+    assert not all((s == starts["random"][0]).all() for s in starts["random"])
+
+
+def test_default_starts_leave_the_planner_knobs_and_run_keys_unchanged():
+    from nca_qd.sim.rhcr import planner_options
+
+    assert planner_options({"starts": "random"}) == {}
+    assert planner_options({"starts": "reference", "pbs_max_nodes": 10}) == {
+        "reference_starts": True,
+        "pbs_max_nodes": 10,
+    }

@@ -38,6 +38,7 @@ except ImportError as exc:  # pragma: no cover - only when the package was not b
 
 __all__ = [
     "PLANNER_KEYS",
+    "STARTS",
     "SimResult",
     "VERSION",
     "planner_options",
@@ -219,13 +220,17 @@ def simulate_many(
 
 
 # The planner's knobs a config may set (the rest of a run's settings are T, seeds, w, h).
-PLANNER_KEYS = ("plan_time_limit_s", "pbs_max_nodes", "prioritize_start")
+PLANNER_KEYS = ("plan_time_limit_s", "pbs_max_nodes", "prioritize_start", "starts")
+STARTS = ("random", "reference")  # start cells drawn per seed / the reference's one configuration
 
 
 def planner_options(cfg: Mapping[str, Any] | None, where: str = "") -> dict[str, Any]:
     """The planner knobs of ``cfg`` (:data:`PLANNER_KEYS`), validated, as keyword arguments of
     :func:`simulate`; a key missing from ``cfg`` keeps the simulator's default (RHCR as the
-    paper ran it). ``where`` prefixes the key in error messages (e.g. ``eval.``)."""
+    paper ran it). ``starts: reference`` becomes ``reference_starts=True``: every seed starts from
+    the one configuration the reference draws (a fixed shuffle of the traversable cells), as
+    the paper's runs did; ``random`` (the default) draws the starts per seed.
+    ``where`` prefixes the key in error messages (e.g. ``eval.``)."""
     cfg = cfg or {}
     out: dict[str, Any] = {}
     if "plan_time_limit_s" in cfg:
@@ -250,6 +255,11 @@ def planner_options(cfg: Mapping[str, Any] | None, where: str = "") -> dict[str,
                 f"{where}prioritize_start must be true or false, got {cfg['prioritize_start']!r}"
             )
         out["prioritize_start"] = cfg["prioritize_start"]
+    if "starts" in cfg:
+        if cfg["starts"] not in STARTS:
+            raise NcaQdError(f"{where}starts must be one of {', '.join(STARTS)}, got {cfg['starts']!r}")
+        if cfg["starts"] == "reference":  # (absent for the default: keys of earlier runs stay valid)
+            out["reference_starts"] = True
     return out
 
 
