@@ -4,6 +4,11 @@
 #include <functional>
 
 namespace rhcr {
+namespace {
+// Direction codes (grid.hpp) in the order successors are generated: RHCR's move order
+// (east, north, west, south), then the wait.
+constexpr int kSuccessorOrder[5] = {1, 0, 3, 2, kWait};
+}  // namespace
 
 // States are (time, goals done, cell); the chain of waits on the start cell since time 0 is
 // kept apart (slot goal_count_ + 1): under start_priority it may pass where others may not.
@@ -18,8 +23,8 @@ bool SpaceTimeAStar::seen(int t, int gi, int cell, bool at_start) {
 void SpaceTimeAStar::push(int cell, int t, int gi, int g, int parent, bool at_start) {
   const int f = g + heuristic(cell, gi);
   nodes_.push_back({cell, t, gi, g, f, parent, at_start});
-  // Min-heap on f; ties prefer larger g (deeper nodes), then the older node (determinism).
-  heap_.push_back({fg_key(f, g), static_cast<int>(nodes_.size()) - 1});
+  // Min-heap on f; ties prefer larger g (deeper nodes), then the newest node (RHCR's SIPP).
+  heap_.push_back({fg_key(f, g), -(static_cast<int>(nodes_.size()) - 1)});
   std::push_heap(heap_.begin(), heap_.end(), std::greater<>());
 }
 
@@ -54,7 +59,7 @@ bool SpaceTimeAStar::plan(const ReservationTable& rt, const AgentQuery& q, int* 
   int64_t budget = max_expansions;
   while (!heap_.empty()) {
     std::pop_heap(heap_.begin(), heap_.end(), std::greater<>());
-    const int id = heap_.back().second;
+    const int id = -heap_.back().second;
     heap_.pop_back();
     const Node n = nodes_[id];
     ++expansions_;
@@ -102,9 +107,10 @@ bool SpaceTimeAStar::plan(const ReservationTable& rt, const AgentQuery& q, int* 
       continue;
     }
 
-    // Ordinary successors: wait or move to a 4-neighbour, respecting reservations.
+    // Ordinary successors: move to a 4-neighbour (in RHCR's order: east, north, west, south)
+    // or wait, respecting reservations.
     const int t1 = n.t + 1;
-    for (int d = 0; d <= kWait; ++d) {
+    for (int d : kSuccessorOrder) {
       const int v = d == kWait ? n.cell : grid_.neighbor(n.cell, d);
       if (v < 0) continue;
       const bool waits_at_start = d == kWait && n.at_start;

@@ -145,7 +145,7 @@ nb::dict plan(nb::ndarray<const uint8_t, nb::ndim<2>, nb::c_contig, nb::device::
 
 NB_MODULE(_core, m) {
   m.doc() = "Compiled RHCR lifelong-MAPF simulator (windowed PBS over space-time A*).";
-  m.attr("VERSION") = 3;  // bump when a change alters simulated outcomes
+  m.attr("VERSION") = 4;  // bump when a change alters simulated outcomes
   m.def("run", &run, "traversable"_a, "class_cells"_a, "class_weights"_a, "class_dwell"_a, "cycle"_a,
         "n_agents"_a, "horizon"_a, "seed"_a, "window"_a = 10, "replan"_a = 5, "time_limit_s"_a = 0.0,
         "pbs_max_nodes"_a = 0, "record_paths"_a = false, "plan_time_limit_s"_a = 60.0,
