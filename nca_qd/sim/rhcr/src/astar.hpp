@@ -22,7 +22,7 @@
 // last of these directions that still leads closer. This is not cosmetic: which of the many
 // shortest routes agents take decides how often they meet. From the reference's own planning
 // inputs (paper 33x36 layout, 340 agents) these rules give the reference's root paths agent
-// for agent; breaking ties the other way gave 11 % more root conflicts and twice the jams.
+// for agent; breaking ties the other way gave 10 % more root conflicts.
 //
 // prioritize_start (RHCR's option, on in the paper): an agent that has not left its start
 // cell may keep waiting there whatever the reservations say (`start_priority`); PBS then
