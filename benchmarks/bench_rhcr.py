@@ -3,8 +3,9 @@
 Prints, per layout: CPU-seconds per simulation and per planning call (median / 95th
 percentile / max), throughput (mean ± standard error over the seeds), success rate, PBS
 failures, beside the paper's figure. Peers: the reference C++ RHCR (the paper's fork) needs
-about 26-28 CPU-seconds for 200 agents x 1,000 steps on the paper's 33x36 generated warehouse
-and 40-50 on manufacturing; at 101x102 with 1,400 agents it spends 6-50 s per planning call
+about 21.5 CPU-seconds for 200 agents x 1,000 steps on the paper's 33x36 generated warehouse
+(a build with the Boost 1.71 heap its code release names; 26-28 with the earlier build, which
+also gave 40-50 on manufacturing); at 101x102 with 1,400 agents it spends 6-50 s per planning call
 (hours per run). Layouts come from :func:`nca_qd.io.reference_maps_dir` ($NCA_QD_MAPS or the
 shared reference folder); missing ones are reported and skipped.
 
@@ -52,9 +53,9 @@ def main(argv: list[str] | None = None) -> None:
     if args.seeds < 1:
         ap.error(f"--seeds must be >= 1, got {args.seeds}")
     print(
-        "== RHCR (windowed PBS + space-time A*, w=10, h=5); reference C++ RHCR: 26-28 CPU-s "
-        "(paper layout), 40-50 (manufacturing) per 200 agents x 1,000 steps; 6-50 s per "
-        "planning call at 101x102 with 1,400 agents"
+        "== RHCR (windowed PBS + space-time A*, w=10, h=5); reference C++ RHCR: 21.5 CPU-s "
+        "(paper layout; an earlier build 26-28), 40-50 (manufacturing, earlier build) per "
+        "200 agents x 1,000 steps; 6-50 s per planning call at 101x102 with 1,400 agents"
     )
     for rel, scenario, agents, T, case_seeds, paper in CASES:
         if args.only not in rel:
