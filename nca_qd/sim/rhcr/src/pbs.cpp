@@ -49,11 +49,28 @@ void WindowedPBS::higher_of(int agent, std::vector<int>& out) {
   }
 }
 
-// Is `higher` above `lower` in the current priority graph?
+// Is `higher` above `lower` in the current priority graph? (A search upwards from `lower`
+// that stops when it meets `higher`.)
 bool WindowedPBS::connected(int lower, int higher) {
   if (higher_[lower].empty()) return false;
-  higher_of(lower, scratch_);
-  return std::find(scratch_.begin(), scratch_.end(), higher) != scratch_.end();
+  if (++mark_stamp_ == 0) {
+    std::fill(mark_.begin(), mark_.end(), 0);
+    mark_stamp_ = 1;
+  }
+  mark_[lower] = mark_stamp_;
+  stack_.assign(1, lower);
+  while (!stack_.empty()) {
+    const int u = stack_.back();
+    stack_.pop_back();
+    for (int v : higher_[u]) {
+      if (v == higher) return true;
+      if (mark_[v] != mark_stamp_) {
+        mark_[v] = mark_stamp_;
+        stack_.push_back(v);
+      }
+    }
+  }
+  return false;
 }
 
 // Can agents a and b come within `reach` of each other? Each moves at most `window` cells
@@ -64,9 +81,8 @@ bool WindowedPBS::near(int a, int b, int reach) const {
 }
 
 // RHCR's conflict test between two paths within the window: the first vertex conflict or
-// swap in time order.
+// swap in time order. Callers only ask about pairs of nearby_ (others never meet).
 bool WindowedPBS::conflict_between(const Node& n, int a1, int a2, Conflict& c) const {
-  if (!near(a1, a2, 2 * window_)) return false;
   const int* p = path(n, a1);
   const int* q = path(n, a2);
   for (int t = 0; t <= window_; ++t) {
@@ -83,10 +99,21 @@ bool WindowedPBS::conflict_between(const Node& n, int a1, int a2, Conflict& c) c
   return false;
 }
 
+void WindowedPBS::build_nearby() {
+  nearby_.resize(n_agents_);
+  for (auto& list : nearby_) list.clear();
+  for (int a = 0; a < n_agents_; ++a)
+    for (int b = a + 1; b < n_agents_; ++b)
+      if (near(a, b, 2 * window_)) {
+        nearby_[a].push_back(b);
+        nearby_[b].push_back(a);
+      }
+}
+
 void WindowedPBS::conflicts_of(const Node& n, int agent, std::vector<Conflict>& out) const {
   Conflict c;
-  for (int b = 0; b < n_agents_; ++b)
-    if (b != agent && conflict_between(n, agent, b, c)) out.push_back(c);
+  for (int b : nearby_[agent])
+    if (conflict_between(n, agent, b, c)) out.push_back(c);
 }
 
 // Does the path stay on `cell` from time 0 through t (and go on after t)?
@@ -121,8 +148,9 @@ bool WindowedPBS::find_path(Node& n, int agent, const std::vector<AgentQuery>& q
   for (int h : above)
     if (near(agent, h, 2 * window_)) rt_.add_path(grid_, path(n, h));
   if (prioritize_start_)
-    for (int i = 0; i < n_planned; ++i) {
-      if (i == agent || !near(agent, i, window_)) continue;
+    for (int i : nearby_[agent]) {
+      if (i >= n_planned) break;  // nearby_ is in increasing id
+      if (!near(agent, i, window_)) continue;
       const int* p = path(n, i);
       int leave = 1;
       while (leave <= window_ && p[leave] == p[0]) ++leave;
@@ -208,6 +236,7 @@ bool WindowedPBS::solve(const std::vector<AgentQuery>& queries, int executed_ste
   nogood_.clear();
   start_.resize(n_agents_);
   for (int a = 0; a < n_agents_; ++a) start_[a] = queries[a].start;
+  build_nearby();
 
   // Root: every agent alone, in id order, avoiding the start cells of those planned before.
   auto root = std::make_unique<Node>();
@@ -223,8 +252,8 @@ bool WindowedPBS::solve(const std::vector<AgentQuery>& queries, int executed_ste
   }
   Conflict c;
   for (int a = 0; a < n_agents_; ++a)
-    for (int b = a + 1; b < n_agents_; ++b)
-      if (conflict_between(*root, a, b, c)) root->conflicts.push_back(c);
+    for (int b : nearby_[a])
+      if (b > a && conflict_between(*root, a, b, c)) root->conflicts.push_back(c);
   if (!make_consistent(*root, -1, queries)) {
     repair(*root, queries, executed_steps, rng, out);
     return false;

@@ -108,9 +108,14 @@ class WindowedPBS {
   std::vector<int> graph_agents_;
   std::vector<uint32_t> mark_;
   uint32_t mark_stamp_ = 0;
-  std::vector<int> stack_, scratch_, scratch_path_, above_;
+  std::vector<int> stack_, scratch_path_, above_;
   std::vector<char> touched_flag_;
   std::vector<int> start_;  // each agent's start cell in the current call
+  // Per agent, the other agents whose start cells lie within 2 * window (Manhattan) of its
+  // own, in increasing id: the only ones its windowed path can meet (see near()). Built once
+  // per call, it spares the conflict checks and reservations a scan over all agents.
+  std::vector<std::vector<int>> nearby_;
+  void build_nearby();
 };
 
 }  // namespace rhcr
