@@ -28,9 +28,10 @@ void WindowedPBS::build_graph(const Node& n) {
 }
 
 // Every agent above `agent` in the current priority graph (transitively), excluding itself.
-void WindowedPBS::higher_of(int agent, std::vector<int>& out) {
+// With `stop_at` >= 0 the search stops as soon as it meets that agent and returns true.
+bool WindowedPBS::higher_of(int agent, std::vector<int>& out, int stop_at) {
   out.clear();
-  if (higher_[agent].empty()) return;
+  if (higher_[agent].empty()) return false;
   if (++mark_stamp_ == 0) {
     std::fill(mark_.begin(), mark_.end(), 0);
     mark_stamp_ = 1;
@@ -40,38 +41,20 @@ void WindowedPBS::higher_of(int agent, std::vector<int>& out) {
   while (!stack_.empty()) {
     const int u = stack_.back();
     stack_.pop_back();
-    for (int v : higher_[u])
+    for (int v : higher_[u]) {
+      if (v == stop_at) return true;
       if (mark_[v] != mark_stamp_) {
         mark_[v] = mark_stamp_;
         out.push_back(v);
-        stack_.push_back(v);
-      }
-  }
-}
-
-// Is `higher` above `lower` in the current priority graph? (A search upwards from `lower`
-// that stops when it meets `higher`.)
-bool WindowedPBS::connected(int lower, int higher) {
-  if (higher_[lower].empty()) return false;
-  if (++mark_stamp_ == 0) {
-    std::fill(mark_.begin(), mark_.end(), 0);
-    mark_stamp_ = 1;
-  }
-  mark_[lower] = mark_stamp_;
-  stack_.assign(1, lower);
-  while (!stack_.empty()) {
-    const int u = stack_.back();
-    stack_.pop_back();
-    for (int v : higher_[u]) {
-      if (v == higher) return true;
-      if (mark_[v] != mark_stamp_) {
-        mark_[v] = mark_stamp_;
         stack_.push_back(v);
       }
     }
   }
   return false;
 }
+
+// Is `higher` above `lower` in the current priority graph?
+bool WindowedPBS::connected(int lower, int higher) { return higher_of(lower, scratch_, higher); }
 
 // Can agents a and b come within `reach` of each other? Each moves at most `window` cells
 // from its start, so pairs whose starts are farther apart never interact.

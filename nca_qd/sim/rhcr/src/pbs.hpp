@@ -82,7 +82,7 @@ class WindowedPBS {
   int* path(Node& n, int agent) { return n.paths.data() + agent * (window_ + 1); }
 
   void build_graph(const Node& n);
-  void higher_of(int agent, std::vector<int>& out);
+  bool higher_of(int agent, std::vector<int>& out, int stop_at = -1);
   bool connected(int lower, int higher);
   bool near(int a, int b, int reach) const;
   bool conflict_between(const Node& n, int a1, int a2, Conflict& c) const;
@@ -108,7 +108,7 @@ class WindowedPBS {
   std::vector<int> graph_agents_;
   std::vector<uint32_t> mark_;
   uint32_t mark_stamp_ = 0;
-  std::vector<int> stack_, scratch_path_, above_;
+  std::vector<int> stack_, scratch_, scratch_path_, above_;
   std::vector<char> touched_flag_;
   std::vector<int> start_;  // each agent's start cell in the current call
   // Per agent, the other agents whose start cells lie within 2 * window (Manhattan) of its
