@@ -205,6 +205,17 @@ def test_scoring_config_rejects_bad_values():
     # a saved config from before the free-flow estimate keeps the estimate it ran with
     assert ScoringConfig.from_cfg({}).screen_estimate == "scaled"
     assert ScoringConfig.from_cfg({"screen_empty_cells": True}).screen_empty_cells
+    # ... and the congested-layout share it ran with; the shipped config names today's fit
+    from omegaconf import OmegaConf
+
+    from nca_qd.sim.free_flow import CONGESTED_MODEL, CONGESTED_MODEL_V3
+
+    assert ScoringConfig.from_cfg({}).screen_congested == CONGESTED_MODEL_V3
+    shipped = OmegaConf.load(Path(__file__).parents[1] / "experiments/conf/run.yaml").eval
+    assert ScoringConfig.from_cfg(shipped).screen_congested == CONGESTED_MODEL != CONGESTED_MODEL_V3
+    for bad in ([1.0, 2.0], "0.4 4.5 -2.6", [0.4, float("nan"), 1.0], [0.4, "x", 1.0]):
+        with pytest.raises(NcaQdError, match="eval.screen_congested must be three finite numbers"):
+            ScoringConfig.from_cfg({"screen_congested": bad})
 
 
 # ------------------------------------------------------------------------------ one batch
@@ -231,7 +242,7 @@ def _regions(domain, gen, b, seed):
 
 
 @pytest.mark.parametrize("estimate", ["free_flow", "scaled"])
-def test_batch_scores_match_independent_recomputation(tiny_scorer, estimate):
+def test_batch_scores_match_independent_recomputation(tiny_scorer, estimate, monkeypatch):
     """Repaired layouts are valid (independent validator); exact throughputs equal direct RHCR
     runs with the same seeds; f_opt = f + alpha * Delta, where a layout without exact runs has
     f = the screen's prediction of RHCR (recomputed from direct screen runs with the same
@@ -245,7 +256,7 @@ def test_batch_scores_match_independent_recomputation(tiny_scorer, estimate):
     from nca_qd.repair import make_rules
     from nca_qd.repair.validator import check
     from nca_qd.scoring.mapf import ScoringContext, screen_bucket
-    from nca_qd.sim.free_flow import CONGESTED_MODEL, free_flow_throughput
+    from nca_qd.sim.free_flow import free_flow_throughput
     from nca_qd.sim.rhcr import simulate
     from nca_qd.sim.scenario import build_scenario
     from nca_qd.sim.screen import simulate_scenarios
@@ -257,13 +268,25 @@ def test_batch_scores_match_independent_recomputation(tiny_scorer, estimate):
     # the first entropy column: those cells are empty, so those layouts must get exact runs.
     ctx = ScoringContext(result_elite=lambda m: np.where(np.asarray(m)[:, 0] < 0.1, -np.inf, 1e9))
     saved = scorer.cfg
-    scorer.cfg = dataclasses.replace(saved, screen_estimate=estimate)
+    # a congested-layout share of its own: the scorer must take eval.screen_congested
+    scorer.cfg = dataclasses.replace(saved, screen_estimate=estimate, screen_congested=(0.2, 3.0, -1.0))
+    import nca_qd.scoring.mapf as mapf
+
+    shares = []  # the congested-layout share each estimate was made with (these layouts all flow)
+    original = mapf.rhcr_estimate
+
+    def recording_estimate(thr, ok, stop, flow, efficiency, congested):
+        shares.append(congested)
+        return original(thr, ok, stop, flow, efficiency, congested)
+
+    monkeypatch.setattr(mapf, "rhcr_estimate", recording_estimate)
     try:
         efficiency = scorer.efficiency  # the prior: this scorer has seen < 50 flowing runs
         ev = scorer(regions, key, ctx)
     finally:
         scorer.cfg = saved
     assert efficiency == saved.screen_efficiency
+    assert shares == ([(0.2, 3.0, -1.0)] if estimate == "free_flow" else [])
     ex = ev.extras
     rules = make_rules("warehouse_even", ex["repaired"].shape[1:], n_shelves=20)
     seed0 = int(np.asarray(key, dtype=np.uint32).ravel()[-1] % np.uint32(2**31 - 1))
@@ -296,7 +319,7 @@ def test_batch_scores_match_independent_recomputation(tiny_scorer, estimate):
             flow = free_flow_throughput(scens[i], 10)
             scaled = [saved.screen_scale * r.throughput for r in runs]
             if estimate == "free_flow":
-                a, b, c = CONGESTED_MODEL
+                a, b, c = 0.2, 3.0, -1.0
                 thr_ff = np.mean([r.throughput for r in runs]) / flow
                 stop = np.mean([r.stop_time / 60 for r in runs])
                 share = min(max(a + b * thr_ff + c * stop, 0.0), efficiency)

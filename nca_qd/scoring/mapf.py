@@ -16,7 +16,8 @@ Per batch (paper §4 with the design's screening step):
    (:func:`nca_qd.sim.free_flow.rhcr_estimate`; the share, ``screen_efficiency``, is
    recalibrated on the search's own flowing exact runs once it has
    :data:`MIN_CALIBRATION_RUNS`), one with a congested run a share fitted on the screen's
-   throughput and stop times; ``scaled`` counts every run ``screen_scale`` x its own. On the
+   throughput and stop times (``screen_congested``); ``scaled`` counts every run
+   ``screen_scale`` x its own. On the
    search's own layouts and on held-out ones the first ranks RHCR's throughput better
    (``benchmarks/bench_screen.py``).
 4. **Exact RHCR** (parallel, on the backend) for the layouts whose predicted throughput
@@ -57,7 +58,7 @@ from nca_qd.io import array_to_rows
 from nca_qd.scoring.backend import JobFailed, make_backend, map_jobs
 from nca_qd.scoring.memo import MEMO_FILE, EvalMemo, first_of_each, layout_key
 from nca_qd.scoring.tasks import ExactOutcome, RepairOutcome, repair_options, repair_task, rhcr_task
-from nca_qd.sim.free_flow import free_flow_throughput, rhcr_estimate
+from nca_qd.sim.free_flow import CONGESTED_MODEL_V3, free_flow_throughput, rhcr_estimate
 from nca_qd.sim.rhcr import VERSION as RHCR_VERSION
 from nca_qd.sim.rhcr import planner_options
 
@@ -95,6 +96,10 @@ class ScoringConfig:
     # The default of a config without the key is the estimate runs made before it existed used.
     screen_estimate: str = "scaled"
     screen_efficiency: float = 0.932
+    # (free_flow) a + b * screened throughput / free flow + c * stop time / T: RHCR's share of
+    # free flow on a layout with a congested screened run; a config without the key gets the
+    # fit its run was started with (against exact simulator version 3)
+    screen_congested: tuple[float, float, float] = CONGESTED_MODEL_V3
     exact_margin: float = 0.1
     exact_random_share: float = 0.1
     exact_time_limit_s: float | None = None
@@ -125,6 +130,7 @@ class ScoringConfig:
             screen_scale=float(cfg.get("screen_scale", 1.3)),
             screen_estimate=estimate,
             screen_efficiency=float(cfg.get("screen_efficiency", 0.932)),
+            screen_congested=_three_numbers(cfg.get("screen_congested", CONGESTED_MODEL_V3)),
             exact_margin=float(cfg.get("exact_margin", 0.1)),
             exact_random_share=float(cfg.get("exact_random_share", 0.1)),
             exact_time_limit_s=(
@@ -141,6 +147,17 @@ class ScoringConfig:
         if not 0.0 < out.screen_efficiency <= 1.0:
             raise NcaQdError(f"eval.screen_efficiency must be in (0, 1], got {out.screen_efficiency}")
         return out
+
+
+def _three_numbers(value: Any) -> tuple[float, float, float]:
+    """``eval.screen_congested`` as ``(a, b, c)``: three finite numbers."""
+    try:
+        out = tuple(float(v) for v in value)
+    except (TypeError, ValueError):
+        out = ()
+    if len(out) != 3 or not all(np.isfinite(out)):
+        raise NcaQdError(f"eval.screen_congested must be three finite numbers [a, b, c], got {value!r}")
+    return out  # type: ignore[return-value]
 
 
 def choose_exact(
@@ -509,7 +526,7 @@ class MapfScorer:
             w.free_flow[sel] = flow[inverse]
             if self.cfg.screen_estimate == "free_flow":
                 # a rejected scenario has NaN runs and free flow: its estimate stays NaN
-                estimate = rhcr_estimate(thr, ok, stop, flow, self.efficiency)
+                estimate = rhcr_estimate(thr, ok, stop, flow, self.efficiency, self.cfg.screen_congested)
                 w.predicted[sel] = np.where(np.isnan(thr).any(axis=1), np.nan, estimate)[inverse]
             else:
                 w.predicted[sel] = w.screened[sel] * self.cfg.screen_scale
