@@ -47,6 +47,18 @@ class RunSettings:
         self.threads = threads or len(os.sched_getaffinity(0))
         self.record_paths = cfg.paths_out is not None
         self.rhcr = rhcr_options(cfg)
+        self.crowd_mean = screen_crowd_mean(cfg) if cfg.simulator == "screen" else None
+
+
+def screen_crowd_mean(cfg: DictConfig) -> float:
+    """(``simulator=screen``) the crowding rule's threshold: ``screen_crowd_mean``, else the
+    domain's (``simulation.screen_crowd_mean`` of experiments/conf/domain/<domain>.yaml)."""
+    from nca_qd.sim.screen import crowd_mean_for
+
+    if cfg.get("screen_crowd_mean") is not None:
+        return crowd_mean_for({}, cfg.screen_crowd_mean)
+    domain_cfg = compose_config("run", [f"domain={cfg.domain}"]).domain
+    return crowd_mean_for(OmegaConf.to_container(domain_cfg, resolve=True))
 
 
 def rhcr_options(cfg: DictConfig) -> dict:
@@ -81,9 +93,9 @@ def _screen(scen: Scenario, s: RunSettings, seeds: list[int]) -> Iterator:
     # JAX screening simulator: all seeds as one vmapped batch (window and time limit unused).
     from nca_qd.sim.screen import simulate_scenarios
 
-    yield from simulate_scenarios([scen], s.agents, s.T, seeds, replan=s.replan, record_paths=s.record_paths)[
-        0
-    ]
+    yield from simulate_scenarios(
+        [scen], s.agents, s.T, seeds, replan=s.replan, record_paths=s.record_paths, crowd_mean=s.crowd_mean
+    )[0]
 
 
 # name -> loader returning the simulator (a loader may refuse with a one-line NcaQdError).

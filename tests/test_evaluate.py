@@ -637,8 +637,10 @@ def test_the_screen_run_record_keys_on_every_input_and_the_screen_version(tmp_pa
         (*args[:2], 9, *args[3:]),  # agents
         (*args[:4], 1, args[5]),  # the seed
         (*args[:5], 4),  # replan
+        (*args, 19.25),  # the crowding threshold (a domain's own)
     ]
-    assert len({key, *(screen_run_key(*a) for a in changed)}) == 5
+    assert len({key, *(screen_run_key(*a) for a in changed)}) == 6
+    assert screen_run_key(*args, screen.CROWD_MEAN) == key  # the default: keys recorded before it
     for name, value in (("VERSION", screen.VERSION + 1), ("PRIORITY", "age"), ("CONGESTION", "moved")):
         with monkeypatch.context() as mp:
             mp.setattr(screen, name, value)

@@ -205,6 +205,11 @@ def test_scoring_config_rejects_bad_values():
     # a saved config from before the free-flow estimate keeps the estimate it ran with
     assert ScoringConfig.from_cfg({}).screen_estimate == "scaled"
     assert ScoringConfig.from_cfg({"screen_empty_cells": True}).screen_empty_cells
+    # the uneven warehouse's traffic has a screen calibrated for it (its domain config)
+    uneven = compose_config("run", ["domain=warehouse_uneven"])
+    assert uneven.domain.simulation.screen_crowd_mean == 19.25
+    assert ScoringConfig.from_cfg(uneven.eval).screen_estimate == "scaled"
+    assert compose_config("run", ["domain=warehouse_even"]).eval.screen_estimate == "free_flow"
     # ... and the congested-layout share it ran with; the shipped config names today's fit
     from omegaconf import OmegaConf
 
@@ -280,6 +285,16 @@ def test_batch_scores_match_independent_recomputation(tiny_scorer, estimate, mon
         return original(thr, ok, stop, flow, efficiency, congested)
 
     monkeypatch.setattr(mapf, "rhcr_estimate", recording_estimate)
+    import nca_qd.sim.screen as screen
+
+    thresholds = []  # the crowding threshold of each screened batch: the domain's
+    screen_batch = screen.simulate_scenarios
+
+    def recording_screen(*args, **kwargs):
+        thresholds.append(kwargs.get("crowd_mean"))
+        return screen_batch(*args, **kwargs)
+
+    monkeypatch.setattr(screen, "simulate_scenarios", recording_screen)
     try:
         efficiency = scorer.efficiency  # the prior: this scorer has seen < 50 flowing runs
         ev = scorer(regions, key, ctx)
@@ -287,6 +302,7 @@ def test_batch_scores_match_independent_recomputation(tiny_scorer, estimate, mon
         scorer.cfg = saved
     assert efficiency == saved.screen_efficiency
     assert shares == ([(0.2, 3.0, -1.0)] if estimate == "free_flow" else [])
+    assert thresholds == [17.0] == [scorer.crowd_mean]  # warehouse_even.yaml's screen_crowd_mean
     ex = ev.extras
     rules = make_rules("warehouse_even", ex["repaired"].shape[1:], n_shelves=20)
     seed0 = int(np.asarray(key, dtype=np.uint32).ravel()[-1] % np.uint32(2**31 - 1))

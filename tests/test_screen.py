@@ -165,6 +165,25 @@ def test_crowding_proxy_stops_a_packed_room_that_rhcrs_rule_lets_run():
     assert moved.success and moved.stop_time == horizon
     stop = crowded.stop_time
     np.testing.assert_array_equal(moved.paths[: stop + 1], crowded.paths)  # same run up to the stop
+    # A threshold above anything this room reaches (a domain whose traffic crowds more where it
+    # flows sets its own): the crowding rule never fires and the run is RHCR's rule's run.
+    lenient = simulate(
+        room,
+        "warehouse_even",
+        60,
+        horizon,
+        0,
+        record_paths=True,
+        congestion="crowding",
+        crowd_mean=float(moved.crowding.max()) + 0.5,
+    )
+    assert lenient.success and lenient.stop_time == horizon
+    np.testing.assert_array_equal(lenient.paths, moved.paths)
+    assert screen.crowd_mean_for({"simulation": {"T": 5}}) == screen.CROWD_MEAN
+    assert screen.crowd_mean_for({"simulation": {"screen_crowd_mean": 19.25}}) == 19.25
+    assert screen.crowd_mean_for({"simulation": {"screen_crowd_mean": 19.25}}, 21) == 21.0
+    with pytest.raises(NcaQdError, match="crowding threshold"):
+        screen.crowd_mean_for({"simulation": {"screen_crowd_mean": "high"}})
 
 
 @pytest.mark.parametrize(
@@ -173,6 +192,9 @@ def test_crowding_proxy_stops_a_packed_room_that_rhcrs_rule_lets_run():
         ({"congestion": "jam"}, "congestion rule"),
         ({"priority": "oldest"}, "priority"),
         ({"replan": 0}, "replan"),
+        ({"crowd_mean": 0}, "crowding threshold"),
+        ({"crowd_mean": float("nan")}, "crowding threshold"),
+        ({"crowd_mean": True}, "crowding threshold"),
     ],
 )
 def test_bad_options_error_before_compilation(monkeypatch, option, message):

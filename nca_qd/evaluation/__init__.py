@@ -109,12 +109,15 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
     from nca_qd.io import atomic_write_text
     from nca_qd.pipeline import make_generator
     from nca_qd.scoring.backend import make_backend
+    from nca_qd.sim.screen import crowd_mean_for
 
     ecfg = validated(ecfg)
     run_dir = Path(ecfg["run_dir"])
     cfg, archive = load_run(run_dir, domain_override)
     dcfg = OmegaConf.to_container(cfg.domain, resolve=True)
     name = dcfg["name"]
+    # the screen's crowding threshold: the evaluation's own, else the run's domain's
+    ecfg["screen"]["crowd_mean"] = crowd_mean_for(dcfg, ecfg["screen"].get("crowd_mean"))
     algo = OmegaConf.select(cfg, "algo.name")
     out = Path(ecfg["out"]) if ecfg.get("out") else run_dir / "evaluation"
     by_s_eval = ecfg["select"]["by"] == "s_eval"

@@ -24,6 +24,7 @@ from nca_qd.errors import NcaQdError
 from nca_qd.evaluation.records import EvalLayout, Request, Results, SimOutcome, format_value, size_str
 from nca_qd.evaluation.stats import run_stats
 from nca_qd.evaluation.store import ExactRunStore, ScreenRunStore, run_key, screen_run_key
+from nca_qd.sim.screen import CROWD_MEAN
 
 log = logging.getLogger("nca_qd.evaluate")
 
@@ -197,9 +198,10 @@ def _screen_cells(
     from tqdm import tqdm
 
     replan = int(screen_cfg.get("replan", 5))
+    crowd_mean = float(screen_cfg.get("crowd_mean", CROWD_MEAN))
 
     def key_of(c: Request, seed: int) -> str:
-        return screen_run_key(rows[c.layout], scenario, c.n_agents, T, seed, replan)
+        return screen_run_key(rows[c.layout], scenario, c.n_agents, T, seed, replan, crowd_mean)
 
     groups: dict[tuple[tuple[int, int], int], list[Request]] = {}
     for (key, n), c in cells.items():
@@ -266,6 +268,7 @@ def screen_group(
         range(seed0, seed0 + runs),
         replan=int(screen_cfg.get("replan", 5)),
         threads=screen_cfg.get("threads"),
+        crowd_mean=screen_cfg.get("crowd_mean", CROWD_MEAN),
     )
     per_run = (time.perf_counter() - t0) / max(1, runs * len(group))
     out = []

@@ -20,6 +20,7 @@ from nca_qd.evaluation.layouts import Repair, generate_timed, repair_all, repair
 from nca_qd.evaluation.plan import Plan
 from nca_qd.evaluation.records import EvalLayout, size_str
 from nca_qd.evaluation.tables import write_csv
+from nca_qd.sim.screen import CROWD_MEAN
 
 log = logging.getLogger("nca_qd.evaluate")
 
@@ -116,6 +117,7 @@ def select_scalable(
             seeds,
             replan=int(e["screen"]["replan"]),
             threads=e["screen"].get("threads"),
+            crowd_mean=e["screen"].get("crowd_mean", CROWD_MEAN),
         )
         for row, runs in zip(scored, res):
             row["screen_runs"] = len(runs)

@@ -68,9 +68,17 @@ def run_key(
     return _digest(spec)
 
 
-def screen_run_key(rows: Sequence[str], scenario: str, n_agents: int, T: int, seed: int, replan: int) -> str:
+def screen_run_key(
+    rows: Sequence[str],
+    scenario: str,
+    n_agents: int,
+    T: int,
+    seed: int,
+    replan: int,
+    crowd_mean: float | None = None,
+) -> str:
     """Digest of a screened run's inputs (the screen's default planner, agent order and
-    congestion rule, and its version): equal keys, equal runs."""
+    congestion rule with its crowding threshold, and its version): equal keys, equal runs."""
     from nca_qd.sim import screen
 
     spec = {
@@ -85,6 +93,8 @@ def screen_run_key(rows: Sequence[str], scenario: str, n_agents: int, T: int, se
         "congestion": screen.CONGESTION,
         "screen_version": int(screen.VERSION),
     }
+    if crowd_mean is not None and float(crowd_mean) != screen.CROWD_MEAN:
+        spec["crowd_mean"] = float(crowd_mean)  # (absent at the default: recorded keys stay valid)
     return _digest(spec)
 
 

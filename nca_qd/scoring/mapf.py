@@ -11,6 +11,8 @@ Per batch (paper §4 with the design's screening step):
    measure the screen; a random ``exact_random_share`` of them is screened for that
    (``screen_empty_cells: true`` screens them all). Early in a search most cells are empty
    and this saves most of the screen's time.
+   The crowding rule's threshold is the domain's (``simulation.screen_crowd_mean``: traffic
+   that crowds more where it flows, like the uneven warehouse's, needs a higher one).
    The screen's runs predict RHCR's throughput (``screen_estimate``): ``free_flow`` gives a
    layout whose screened runs all flowed RHCR's share of its free-flow throughput
    (:func:`nca_qd.sim.free_flow.rhcr_estimate`; the share, ``screen_efficiency``, is
@@ -61,6 +63,7 @@ from nca_qd.scoring.tasks import ExactOutcome, RepairOutcome, repair_options, re
 from nca_qd.sim.free_flow import CONGESTED_MODEL_V3, free_flow_throughput, rhcr_estimate
 from nca_qd.sim.rhcr import VERSION as RHCR_VERSION
 from nca_qd.sim.rhcr import planner_options
+from nca_qd.sim.screen import crowd_mean_for
 
 log = logging.getLogger(__name__)
 
@@ -220,6 +223,7 @@ class MapfScorer:
         self.cfg = ScoringConfig.from_cfg(run_cfg.get("eval"))
         sim = dcfg["simulation"]
         self.T, self.n_runs = int(sim["T"]), int(sim["n_runs"])
+        self.crowd_mean = crowd_mean_for(dcfg)  # the screen's crowding threshold for this traffic
         if self.T <= 0 or self.n_runs <= 0:
             raise NcaQdError(
                 f"domain.simulation needs T > 0 and n_runs > 0, got T={self.T}, n_runs={self.n_runs}"
@@ -254,10 +258,12 @@ class MapfScorer:
         # exact throughput / free flow of the search's flowing exact runs (free-flow estimate)
         self._flow_shares: list[np.ndarray] = []
         log.info(
-            "%s scoring: %s; screen %s, exact %s",
+            "%s scoring: %s; screen %s (%s estimate, crowding threshold %g), exact %s",
             domain.name,
             self.backend.describe(),
             "on" if self.cfg.screen else "off",
+            self.cfg.screen_estimate,
+            self.crowd_mean,
             self.cfg.exact,
         )
 
@@ -300,7 +306,7 @@ class MapfScorer:
             # a handful instead of one compilation per new count.
             n = len(scens)
             padded = scens + [scens[-1]] * (screen_bucket(n, cap) - n)
-            res = simulate_scenarios(padded, self.n_agents, self.T, seeds)[:n]
+            res = simulate_scenarios(padded, self.n_agents, self.T, seeds, crowd_mean=self.crowd_mean)[:n]
             thr[keep] = [[r.throughput for r in row] for row in res]
             ok[keep] = [[r.success for r in row] for row in res]
             stop[keep] = [[r.stop_time / self.T for r in row] for row in res]

@@ -61,10 +61,10 @@ from __future__ import annotations
 import math
 import os
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -95,8 +95,10 @@ PRIORITY = "random"  # "random": fresh random agent order each step; "age": PIBT
 # does not. Calibrated on 41 layouts of benchmarks/bench_screen.py's generator with seed 0 (a
 # grid over threshold, first check and window; the running mean beat "3 checks in a row >= 20"
 # there and on the held-out seed-1 set: per-run agreement 0.73 -> 0.80); figures use seed 1.
+# CROWD_MEAN is the default; a domain whose traffic crowds more where it flows sets its own
+# (``crowd_mean``; the domain config's ``simulation.screen_crowd_mean``).
 DENSITY_K = 5
-CROWD_MEAN = 17
+CROWD_MEAN = 17.0
 CROWD_MIN_CHECKS = 10
 PLANNER = "pibt"  # or "windowed": prioritized planning over a window (screen_windowed.py)
 # PIBT's congestion rule; the windowed planner applies "moved" (RHCR's) only
@@ -111,6 +113,25 @@ DIST_CHUNK = 64  # goals per block of the distance relaxation on CPU (see distan
 MAX_TABLE = 2**28  # int16 distance-table entries per batch (512 MiB); more -> several batches
 WINDOW = 10  # the windowed planner's window w (RHCR's); at most 15 (a patch row is 2w+1 bits)
 _PAD = 64  # goal-table and class sizes are padded to multiples of this (fewer recompiles)
+
+
+def crowd_mean_for(domain_cfg: Mapping[str, Any], override: Any = None) -> float:
+    """The crowding threshold a domain config asks for (``simulation.screen_crowd_mean``, else
+    :data:`CROWD_MEAN`), or ``override`` where it is not None; a bad value is one clear line."""
+    value = override
+    if value is None:
+        value = (domain_cfg.get("simulation") or {}).get("screen_crowd_mean", CROWD_MEAN)
+    return _crowd_mean(value)
+
+
+def _crowd_mean(value: Any) -> float:
+    """A crowding threshold as a float: a positive finite number, or one clear line."""
+    number = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+    if not number or not 0 < value < float("inf"):
+        raise NcaQdError(
+            f"the crowding threshold (screen_crowd_mean) must be a positive number, got {value!r}"
+        )
+    return float(value)
 
 
 @dataclass
@@ -336,6 +357,7 @@ def _run_batch(
     record_paths,
     priority,
     congestion,
+    crowd_mean=CROWD_MEAN,
 ):
     """All runs in lock-step: run ``r`` simulates layout ``lidx[r]`` with ``seeds[r]``.
 
@@ -616,7 +638,7 @@ def _run_batch(
         congested = st["congested"]
         if congestion == "crowding":  # RHCR's rule, or crowded on average since the start
             congested = congested | (
-                check & (n_checked >= CROWD_MIN_CHECKS) & (crowd_sum >= CROWD_MEAN * n_checked)
+                check & (n_checked >= CROWD_MIN_CHECKS) & (crowd_sum >= crowd_mean * n_checked)
             )
         ci = jnp.where(check, (st["t"] - 1) // replan, n_checks)
         return dict(
@@ -679,11 +701,13 @@ _COMPILED: dict = {}
 _EXECUTABLES: dict = {}
 
 
-def _batched(n_agents, T, replan, cycle, record_paths, priority, congestion, planner=PLANNER):
+def _batched(
+    n_agents, T, replan, cycle, record_paths, priority, congestion, planner=PLANNER, crowd_mean=CROWD_MEAN
+):
     """Jitted: (stacked layouts [L, ...], distances [L, G, HW], layout index [R], seeds [R])
     -> results with leading axis R (one per run)."""
     jax, _ = _jax()
-    key = (n_agents, T, replan, cycle, record_paths, priority, congestion, planner)
+    key = (n_agents, T, replan, cycle, record_paths, priority, congestion, planner, crowd_mean)
     if key not in _COMPILED:
 
         def run(lay, dist, lidx, seeds):
@@ -713,6 +737,7 @@ def _batched(n_agents, T, replan, cycle, record_paths, priority, congestion, pla
                 record_paths=record_paths,
                 priority=priority,
                 congestion=congestion,
+                crowd_mean=crowd_mean,
             )
 
         _COMPILED[key] = jax.jit(run)
@@ -811,6 +836,7 @@ def _check(
     congestion: str | None = None,
     priority: str = PRIORITY,
     planner: str = PLANNER,
+    crowd_mean: float = CROWD_MEAN,
 ) -> None:
     if planner not in ("pibt", "windowed"):
         raise NcaQdError(f"planner must be 'pibt' or 'windowed', got {planner!r}")
@@ -825,6 +851,7 @@ def _check(
         raise NcaQdError(f"the windowed planner draws a random order per call, got priority {priority!r}")
     if priority not in ("random", "age"):
         raise NcaQdError(f"priority must be 'random' or 'age', got {priority!r}")
+    _crowd_mean(crowd_mean)
     if congestion not in ("moved", "progress", "crowding"):
         raise NcaQdError(f"congestion rule must be 'moved', 'progress' or 'crowding', got {congestion!r}")
     if isinstance(T, bool) or not isinstance(T, (int, np.integer)) or T <= 0:
@@ -872,13 +899,16 @@ def simulate_scenarios(
     congestion: str | None = None,
     threads: int | None = None,
     planner: str = PLANNER,
+    crowd_mean: float = CROWD_MEAN,
 ) -> list[list[ScreenResult]]:
     """Simulate every validated scenario (one kind, one shape) with every seed, as vmapped
     batches (split over ``threads`` CPU threads, default: all available CPUs): one batch,
     or consecutive groups of layouts when the distance tables would exceed ``MAX_TABLE``
     entries (30 warehouses of 101x102 need 2.3 G). A run's result does not depend on the
-    batch it is in. Returns ``results[layout][seed]``."""
-    _check(n_agents, T, replan, congestion, priority, planner)
+    batch it is in. ``crowd_mean``: the crowding rule's threshold (agents in the most crowded
+    ``DENSITY_K`` x ``DENSITY_K`` block, mean over the checks so far). Returns
+    ``results[layout][seed]``."""
+    _check(n_agents, T, replan, congestion, priority, planner, crowd_mean)
     congestion = _congestion(congestion, planner)
     seeds = [int(s) for s in seeds]
     if not seeds:
@@ -901,6 +931,7 @@ def simulate_scenarios(
             congestion,
             threads,
             planner,
+            float(crowd_mean),
         )
     return out
 
@@ -916,13 +947,13 @@ def _simulate_group(
     congestion: str,
     threads: int | None,
     planner: str = PLANNER,
+    crowd_mean: float = CROWD_MEAN,
 ) -> list[list[ScreenResult]]:
     """One vmapped batch of validated scenarios (see :func:`simulate_scenarios`)."""
     lay = prepare(scens)
     cycle = tuple(int(c) for c in scens[0].cycle)
-    fn = _batched(
-        int(n_agents), int(T), int(replan), cycle, bool(record_paths), priority, congestion, planner
-    )
+    flags = (bool(record_paths), priority, congestion, planner, float(crowd_mean))
+    fn = _batched(int(n_agents), int(T), int(replan), cycle, *flags)
     jax, jnp = _jax()
     lay_j = LayoutArrays(*(jnp.asarray(x) for x in lay))
     S = len(seeds)
@@ -1008,19 +1039,20 @@ def simulate_batch(
     congestion: str | None = None,
     threads: int | None = None,
     planner: str = PLANNER,
+    crowd_mean: float = CROWD_MEAN,
 ) -> list[list[ScreenResult]]:
     """Validate layouts (rows) and simulate all of them with all seeds in one vmapped batch.
 
     All layouts must have one shape. Bad input (unknown scenario or tiles, unreachable goals,
     too many agents, bad T) raises :class:`NcaQdError` before anything is compiled.
     """
-    _check(n_agents, T, replan, congestion, priority, planner)
+    _check(n_agents, T, replan, congestion, priority, planner, crowd_mean)
     scens = [
         build_scenario(list(r), scenario, n_agents=n_agents, source=f"layout {i}")
         for i, r in enumerate(layouts)
     ]
     return simulate_scenarios(
-        scens, n_agents, T, seeds, replan, record_paths, priority, congestion, threads, planner
+        scens, n_agents, T, seeds, replan, record_paths, priority, congestion, threads, planner, crowd_mean
     )
 
 
@@ -1035,8 +1067,19 @@ def simulate(
     priority: str = PRIORITY,
     congestion: str | None = None,
     planner: str = PLANNER,
+    crowd_mean: float = CROWD_MEAN,
 ) -> ScreenResult:
     """One screening run (a batch of one)."""
     return simulate_batch(
-        [rows], scenario, n_agents, T, [seed], replan, record_paths, priority, congestion, planner=planner
+        [rows],
+        scenario,
+        n_agents,
+        T,
+        [seed],
+        replan,
+        record_paths,
+        priority,
+        congestion,
+        planner=planner,
+        crowd_mean=crowd_mean,
     )[0][0]
