@@ -62,6 +62,17 @@ Fidelity at a large size (``BENCH_SCREEN_PARTS=fidelity_large``, not in the defa
 evaluation's ``layouts/``; ``*_unrepaired.json`` skipped) with ``BENCH_SCREEN_LARGE_AGENTS``
 agents (default 1000,1400), seeds 0 and 1, T=1,000: exact RHCR (threads: all CPUs; cached in
 ``BENCH_SCREEN_RHCR_CACHE`` if set) against the screen's default congestion rule, run by run.
+
+A domain's crowding threshold (``BENCH_SCREEN_PARTS=crowd_threshold``, not in the default set:
+minutes of screening, no RHCR): the exactly-run layouts of a search's memo
+(``BENCH_SCREEN_MEMO``, here default ``results/warehouse_uneven_a5/eval_memo.npz``; only the
+iterations up to ``BENCH_SCREEN_MEMO_UNTIL``, default 28, the ones ``simulation.screen_crowd_mean``
+of warehouse_uneven.yaml was calibrated on) in two random halves. On the calibration half the
+screen runs under RHCR's rule alone, and the crowding rule is replayed on their crowding
+records for each threshold (the same verdicts, stop times and throughputs as screening with it);
+the threshold whose majority verdicts agree best with RHCR's is then screened for real on the
+other half, beside the domain's configured threshold and the default (17): majority agreement,
+Spearman of mean throughput, and the scaled estimate's error (1.3 x the screen's throughput).
 """
 
 from __future__ import annotations
@@ -621,6 +632,115 @@ def fit_congested() -> None:
     print(json.dumps(out))
 
 
+def _crowd_replay(crowd, tasks, stop0, ok0, threshold: float, replan: int = 5):
+    """The crowding rule replayed on runs made under RHCR's rule alone (``crowd`` [n, S, checks],
+    ``tasks`` [n, S, T], their stop times and verdicts): (success, throughput) per run had the
+    screen used ``threshold``."""
+    from nca_qd.sim.screen import CROWD_MIN_CHECKS
+
+    n_checks = np.arange(1, crowd.shape[-1] + 1)
+    made = n_checks * replan <= stop0[..., None]  # the checks each run reached
+    hit = made & (n_checks >= CROWD_MIN_CHECKS) & (np.cumsum(crowd, -1) >= threshold * n_checks)
+    first = np.where(hit.any(-1), hit.argmax(-1), -1)
+    stop = np.where(first >= 0, replan * (first + 1), stop0)
+    done = np.cumsum(tasks, -1)
+    thr = np.take_along_axis(done, (stop - 1)[..., None], -1)[..., 0] / tasks.shape[-1]
+    return ok0 & (first < 0), thr
+
+
+def crowd_threshold() -> None:
+    """Calibrate a domain's crowding threshold on half a search's memo, check it on the rest."""
+    from omegaconf import OmegaConf
+
+    from experiments.cli import compose_config
+    from nca_qd.io import array_to_rows
+    from nca_qd.layouts import get_layout
+    from nca_qd.scoring.memo import layout_key
+    from nca_qd.sim.screen import CROWD_MEAN, crowd_mean_for, simulate_scenarios
+
+    path = Path(os.environ.get("BENCH_SCREEN_MEMO", "results/warehouse_uneven_a5/eval_memo.npz"))
+    if not path.is_file():
+        print(f"crowd_threshold: no memo at {path} (set BENCH_SCREEN_MEMO)")
+        return
+    until = int(os.environ.get("BENCH_SCREEN_MEMO_UNTIL", 28))
+    memo = np.load(path)
+    scenario = json.loads(str(memo["fingerprint"]))["domain"]
+    configured = crowd_mean_for(OmegaConf.to_container(compose_config("run", [f"domain={scenario}"]).domain))
+    by_key = {layout_key(lay): i for i, lay in enumerate(memo["repair_layouts"])}
+    entries = [
+        j
+        for j, k in enumerate(memo["exact_keys"])
+        if bytes(k) in by_key and memo["exact_iteration"][j] <= until
+    ]
+    order = np.random.default_rng(2).permutation(entries)
+    halves = {"calibration": np.sort(order[: len(order) // 2]), "check": np.sort(order[len(order) // 2 :])}
+    tiles = get_layout(scenario, "domain").tiles
+
+    def screen(entries_, congestion, threshold=CROWD_MEAN):
+        scens = [
+            build_scenario(
+                array_to_rows(memo["repair_layouts"][by_key[bytes(memo["exact_keys"][j])]], tiles), scenario
+            )
+            for j in entries_
+        ]
+        return [
+            row
+            for a in range(0, len(scens), 64)
+            for row in simulate_scenarios(
+                scens[a : a + 64], AGENTS, T, SEEDS, congestion=congestion, crowd_mean=threshold
+            )
+        ]
+
+    def verdicts(entries_):
+        ok = memo["exact_success"][entries_].astype(bool)
+        return ok.mean(1) > 0.5, memo["exact_throughput"][entries_].mean(1)
+
+    cal = halves["calibration"]
+    print(
+        f"== crowding threshold: {scenario}, {len(entries)} exactly-run layouts of {path} "
+        f"(iterations <= {until}), {len(cal)} to calibrate on, {len(halves['check'])} to check"
+    )
+    runs = screen(cal, "moved")
+    crowd = np.zeros((len(cal), len(SEEDS), T // 5))
+    tasks = np.zeros((len(cal), len(SEEDS), T))
+    for i, row in enumerate(runs):
+        for s, r in enumerate(row):
+            crowd[i, s, : len(r.crowding)] = r.crowding
+            tasks[i, s] = r.tasks_per_step
+    stop0 = np.array([[r.stop_time for r in row] for row in runs])
+    ok0 = np.array([[r.success for r in row] for row in runs])
+    rhcr_ok, _ = verdicts(cal)
+    grid = np.arange(14.0, 30.01, 0.25)
+    agree = [
+        float(np.mean((_crowd_replay(crowd, tasks, stop0, ok0, x)[0].mean(1) > 0.5) == rhcr_ok)) for x in grid
+    ]
+    best = float(grid[int(np.argmax(agree))])
+    print(json.dumps({"calibration_best_threshold": best, "calibration_agreement": round(max(agree), 3)}))
+    chk = halves["check"]
+    rhcr_ok, rhcr_thr = verdicts(chk)
+    for x in sorted({best, configured, CROWD_MEAN}):
+        t0 = time.perf_counter()
+        res = screen(chk, "crowding", x)
+        ok = np.array([[r.success for r in row] for row in res])
+        thr = np.array([[r.throughput for r in row] for row in res]).mean(1)
+        err = CONGESTED_SCALE * thr - rhcr_thr
+        print(
+            json.dumps(
+                {
+                    "threshold": x,
+                    "layouts": len(chk),
+                    "screen_run_success": round(float(ok.mean()), 3),
+                    "rhcr_run_success": round(float(memo["exact_success"][chk].mean()), 3),
+                    "majority_agreement": round(float(np.mean((ok.mean(1) > 0.5) == rhcr_ok)), 3),
+                    "spearman": round(_spearman(rhcr_thr, thr), 3),
+                    "scaled_mae": round(float(np.abs(err).mean()), 3),
+                    "scaled_bias": round(float(err.mean()), 3),
+                    "wall_s": round(time.perf_counter() - t0),
+                }
+            )
+        )
+
+
 def main() -> None:
     parts = os.environ.get("BENCH_SCREEN_PARTS", "fidelity,speed").split(",")
     if "scale" in parts:
@@ -635,6 +755,8 @@ def main() -> None:
         fidelity_large()
     if "fit_congested" in parts:
         fit_congested()
+    if "crowd_threshold" in parts:
+        crowd_threshold()
 
 
 if __name__ == "__main__":
