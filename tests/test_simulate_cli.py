@@ -105,6 +105,7 @@ def test_prints_one_line_per_run_and_a_summary(tmp_path):
         (WAREHOUSE, ["plan_time_limit_s=0"], "plan_time_limit_s must be a positive number"),
         (WAREHOUSE, ["prioritize_start=maybe"], "prioritize_start must be true or false"),
         (WAREHOUSE, ["starts=fixed"], "starts must be one of random, reference, got 'fixed'"),
+        (WAREHOUSE, ["simulator=screen", "screen_crowd_mean=-1"], "crowding threshold"),
     ],
 )
 def test_bad_input_is_one_line_exit_2(tmp_path, rows, args, message):
@@ -162,3 +163,16 @@ def test_default_starts_leave_the_planner_knobs_and_run_keys_unchanged():
         "reference_starts": True,
         "pbs_max_nodes": 10,
     }
+
+
+def test_the_screen_takes_the_domains_crowding_threshold_unless_given_one():
+    from omegaconf import OmegaConf
+
+    from experiments.simulate import screen_crowd_mean
+
+    def cfg(domain, value=None):
+        return OmegaConf.create({"domain": domain, "screen_crowd_mean": value})
+
+    assert screen_crowd_mean(cfg("warehouse_even")) == 17.0
+    assert screen_crowd_mean(cfg("warehouse_uneven")) == 19.25  # its traffic's own
+    assert screen_crowd_mean(cfg("warehouse_uneven", 18)) == 18.0
