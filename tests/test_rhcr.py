@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import threading
 import time
 
@@ -13,7 +14,7 @@ from sim_layouts import MANUFACTURING, WAREHOUSE
 
 from nca_qd.errors import NcaQdError
 from nca_qd.sim.checker import check_run
-from nca_qd.sim.rhcr import simulate, simulate_many
+from nca_qd.sim.rhcr import VERSION, simulate, simulate_many
 from nca_qd.sim.scenario import build_scenario
 
 
@@ -225,3 +226,40 @@ def test_bad_input_is_a_clear_error(rows, scenario, n, T, message):
 def test_replan_longer_than_window_is_refused():
     with pytest.raises(NcaQdError, match="replan"):
         simulate(WAREHOUSE, "warehouse_even", 5, 10, seed=0, window=3, replan=4)
+
+
+def shelf_blocks(n_rows: int, n_cols: int) -> list[str]:
+    """A regular warehouse: rows of shelf blocks between endpoint rows, workstations on the sides."""
+    rows = []
+    for r in range(n_rows):
+        if r % 4 == 0:
+            rows.append("." * n_cols)
+            continue
+        kind = "@" if r % 4 == 2 else "e"
+        inner = "".join(kind if c % 6 not in (0, 5) else "." for c in range(n_cols - 4))
+        side = "w." if r % 2 else ".."
+        rows.append(side + inner + side[::-1])
+    return rows
+
+
+# Every decision of the planner, pinned: tasks done, PBS nodes, A* expansions and a digest of
+# every agent's path. A speed-up of the core must leave all of these unchanged; a change that
+# alters them alters simulated outcomes, so it must bump the core's VERSION (bindings.cpp) and
+# update these figures together.
+@pytest.mark.parametrize(
+    "case, rows, scenario, n, T, kw, expected",
+    [
+        ("flows", shelf_blocks(17, 22), "warehouse_even", 40, 300, {},
+         (739, 300, 0, 1414, 66111, "224a28423607a7d4")),
+        ("failed calls", shelf_blocks(17, 22), "warehouse_uneven", 70, 300, {"pbs_max_nodes": 100},
+         (1210, 300, 29, 5731, 359019, "e1714905445f6ef1")),
+        ("dwell", MANUFACTURING, "manufacturing", 14, 200, {},
+         (185, 200, 0, 346, 35768, "265586f0a21ddc21")),
+    ],
+)  # fmt: skip
+def test_planner_decisions_are_pinned(case, rows, scenario, n, T, kw, expected):
+    assert VERSION == 4, "the pinned figures are version 4's: update them with the version"
+    res = run_checked(rows, scenario, n, T, plan_time_limit_s=None, **kw)
+    digest = hashlib.sha256(np.ascontiguousarray(res.paths, dtype=np.int32).tobytes()).hexdigest()[:16]
+    work = (res.pbs_failures, res.pbs_nodes, res.low_level_expansions)
+    assert (res.finished_tasks, res.stop_time, *work, digest) == expected, case

@@ -1,7 +1,6 @@
 #include "astar.hpp"
 
 #include <algorithm>
-#include <functional>
 
 namespace rhcr {
 namespace {
@@ -23,9 +22,8 @@ bool SpaceTimeAStar::seen(int t, int gi, int cell, bool at_start) {
 void SpaceTimeAStar::push(int cell, int t, int gi, int g, int parent, bool at_start) {
   const int f = g + heuristic(cell, gi);
   nodes_.push_back({cell, t, gi, g, f, parent, at_start});
-  // Min-heap on f; ties prefer larger g (deeper nodes), then the newest node (RHCR's SIPP).
-  heap_.push_back({fg_key(f, g), -(static_cast<int>(nodes_.size()) - 1)});
-  std::push_heap(heap_.begin(), heap_.end(), std::greater<>());
+  // Smallest f first; ties prefer larger g (deeper nodes), then the newest node (RHCR's SIPP).
+  open_.push(f, g, static_cast<int>(nodes_.size()) - 1);
 }
 
 bool SpaceTimeAStar::plan(const ReservationTable& rt, const AgentQuery& q, int* out_path, int& cost,
@@ -49,7 +47,7 @@ bool SpaceTimeAStar::plan(const ReservationTable& rt, const AgentQuery& q, int* 
     visit_stamp_ = 1;
   }
   nodes_.clear();
-  heap_.clear();
+  open_.clear();
 
   // The root never completes a goal: goals count on arrival steps (times >= 1), and a
   // dwell already in progress continues through the root's own macro below.
@@ -57,10 +55,8 @@ bool SpaceTimeAStar::plan(const ReservationTable& rt, const AgentQuery& q, int* 
   push(q.start, 0, 0, 0, -1, true);
 
   int64_t budget = max_expansions;
-  while (!heap_.empty()) {
-    std::pop_heap(heap_.begin(), heap_.end(), std::greater<>());
-    const int id = -heap_.back().second;
-    heap_.pop_back();
+  while (!open_.empty()) {
+    const int id = open_.pop();
     const Node n = nodes_[id];
     ++expansions_;
     if (--budget < 0) return false;

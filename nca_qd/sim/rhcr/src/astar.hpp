@@ -29,6 +29,7 @@
 // replans whoever runs into it.
 #pragma once
 
+#include <algorithm>
 #include <cstdint>
 #include <vector>
 
@@ -106,6 +107,64 @@ struct AgentQuery {
   std::vector<const uint16_t*> dist;
 };
 
+// A* open list as buckets: pops the smallest f, among equal f the largest g, among equal f
+// and g the newest node (the order of RHCR's SIPP; a binary heap on (f, -g, -id) pops the
+// same node). f and g are small non-negative integers, so a bucket per (f, g) holding a
+// stack of node ids replaces the heap's O(log n) sifts with O(1) pushes and pops.
+class BucketOpenList {
+ public:
+  bool empty() const { return size_ == 0; }
+  void push(int f, int g, int id) {
+    if (f >= static_cast<int>(rows_.size())) rows_.resize(f + 1);
+    Row& row = rows_[f];
+    if (g >= static_cast<int>(row.stacks.size())) row.stacks.resize(g + 1);
+    if (!row.used) {
+      row.used = true;
+      used_.push_back(f);
+    }
+    row.stacks[g].push_back(id);
+    ++row.count;
+    row.top_g = std::max(row.top_g, g);
+    min_f_ = std::min(min_f_, f);
+    ++size_;
+  }
+  int pop() {
+    while (rows_[min_f_].count == 0) ++min_f_;
+    Row& row = rows_[min_f_];
+    while (row.stacks[row.top_g].empty()) --row.top_g;
+    std::vector<int>& stack = row.stacks[row.top_g];
+    const int id = stack.back();
+    stack.pop_back();
+    if (--row.count == 0) row.top_g = -1;
+    --size_;
+    return id;
+  }
+  void clear() {
+    for (int f : used_) {
+      Row& row = rows_[f];
+      for (auto& stack : row.stacks) stack.clear();
+      row.count = 0;
+      row.top_g = -1;
+      row.used = false;
+    }
+    used_.clear();
+    size_ = 0;
+    min_f_ = 1 << 30;
+  }
+
+ private:
+  struct Row {
+    std::vector<std::vector<int>> stacks;  // by g
+    int count = 0;
+    int top_g = -1;  // no non-empty stack above it
+    bool used = false;
+  };
+  std::vector<Row> rows_;
+  std::vector<int> used_;
+  int64_t size_ = 0;
+  int min_f_ = 1 << 30;
+};
+
 class SpaceTimeAStar {
  public:
   SpaceTimeAStar(const Grid& grid, int window) : grid_(grid), window_(window) {}
@@ -149,12 +208,7 @@ class SpaceTimeAStar {
   size_t goal_count_ = 0;
   std::vector<int> suffix_;
   std::vector<Node> nodes_;
-  // Open list: ((f, -g) packed into one word, -node id), so the heap mostly compares one
-  // integer (same order as comparing (f, -g, -id); f and g are never negative).
-  static uint64_t fg_key(int f, int g) {
-    return (static_cast<uint64_t>(static_cast<uint32_t>(f)) << 32) | (0xFFFFFFFFu - static_cast<uint32_t>(g));
-  }
-  std::vector<std::pair<uint64_t, int>> heap_;
+  BucketOpenList open_;
   std::vector<uint32_t> visited_;
   uint32_t visit_stamp_ = 0;
   int64_t expansions_ = 0;

@@ -14,53 +14,36 @@ WindowedPBS::WindowedPBS(const Grid& grid, int n_agents, int window)
       window_(window),
       astar_(grid, window),
       rt_(grid.cells(), window),
-      higher_(n_agents),
-      mark_(n_agents, 0),
+      words_((n_agents + 63) / 64),
       touched_flag_(n_agents, 0) {}
 
-void WindowedPBS::build_graph(const Node& n) {
-  for (int a : graph_agents_) higher_[a].clear();
-  graph_agents_.clear();
-  for (const auto& [lo, hi] : n.edges) {
-    if (higher_[lo].empty()) graph_agents_.push_back(lo);
-    higher_[lo].push_back(hi);
+// Add "lower below higher" and keep the closure: whoever is `lower` or below it is now also
+// below `higher` and everything above `higher`.
+void WindowedPBS::add_edge(Node& n, int lower, int higher) {
+  const int rh = n.row_of[higher];
+  if (rh >= 0)
+    row_.assign(n.rows.begin() + static_cast<size_t>(rh) * words_, n.rows.begin() + static_cast<size_t>(rh + 1) * words_);
+  else
+    row_.assign(words_, 0);
+  row_[higher >> 6] |= uint64_t{1} << (higher & 63);
+  auto merge = [&](int x) {
+    uint64_t* r = n.rows.data() + static_cast<size_t>(n.row_of[x]) * words_;
+    for (int w = 0; w < words_; ++w) r[w] |= row_[w];
+  };
+  for (int x : n.row_owner)
+    if (x != lower && is_above(n, x, lower)) merge(x);
+  if (n.row_of[lower] < 0) {
+    n.row_of[lower] = static_cast<int>(n.row_owner.size());
+    n.row_owner.push_back(lower);
+    n.rows.resize(n.rows.size() + words_, 0);
   }
+  merge(lower);
 }
-
-// Every agent above `agent` in the current priority graph (transitively), excluding itself.
-// With `stop_at` >= 0 the search stops as soon as it meets that agent and returns true.
-bool WindowedPBS::higher_of(int agent, std::vector<int>& out, int stop_at) {
-  out.clear();
-  if (higher_[agent].empty()) return false;
-  if (++mark_stamp_ == 0) {
-    std::fill(mark_.begin(), mark_.end(), 0);
-    mark_stamp_ = 1;
-  }
-  mark_[agent] = mark_stamp_;
-  stack_.assign(1, agent);
-  while (!stack_.empty()) {
-    const int u = stack_.back();
-    stack_.pop_back();
-    for (int v : higher_[u]) {
-      if (v == stop_at) return true;
-      if (mark_[v] != mark_stamp_) {
-        mark_[v] = mark_stamp_;
-        out.push_back(v);
-        stack_.push_back(v);
-      }
-    }
-  }
-  return false;
-}
-
-// Is `higher` above `lower` in the current priority graph?
-bool WindowedPBS::connected(int lower, int higher) { return higher_of(lower, scratch_, higher); }
 
 // Can agents a and b come within `reach` of each other? Each moves at most `window` cells
 // from its start, so pairs whose starts are farther apart never interact.
 bool WindowedPBS::near(int a, int b, int reach) const {
-  const int ca = start_[a], cb = start_[b];
-  return grid_.manhattan(ca, cb) <= reach;
+  return std::abs(start_row_[a] - start_row_[b]) + std::abs(start_col_[a] - start_col_[b]) <= reach;
 }
 
 // RHCR's conflict test between two paths within the window: the first vertex conflict or
@@ -68,6 +51,12 @@ bool WindowedPBS::near(int a, int b, int reach) const {
 bool WindowedPBS::conflict_between(const Node& n, int a1, int a2, Conflict& c) const {
   const int* p = path(n, a1);
   const int* q = path(n, a2);
+  // Most pairs never meet: rule them out with one branch-free pass (kAbsent cells may match
+  // here; the exact scan below sorts them out).
+  unsigned hit = 0;
+  for (int t = 0; t <= window_; ++t) hit |= static_cast<unsigned>(p[t] == q[t]);
+  for (int t = 0; t < window_; ++t) hit |= static_cast<unsigned>(p[t] == q[t + 1]) & static_cast<unsigned>(q[t] == p[t + 1]);
+  if (!hit) return false;
   for (int t = 0; t <= window_; ++t) {
     if (p[t] == kAbsent || q[t] == kAbsent) return false;
     if (p[t] == q[t]) {
@@ -83,13 +72,25 @@ bool WindowedPBS::conflict_between(const Node& n, int a1, int a2, Conflict& c) c
 }
 
 void WindowedPBS::build_nearby() {
+  start_row_.resize(n_agents_);
+  start_col_.resize(n_agents_);
+  for (int a = 0; a < n_agents_; ++a) {
+    start_row_[a] = start_[a] / grid_.cols();
+    start_col_[a] = start_[a] % grid_.cols();
+  }
   nearby_.resize(n_agents_);
+  close_.resize(n_agents_);
   for (auto& list : nearby_) list.clear();
+  for (auto& list : close_) list.clear();
   for (int a = 0; a < n_agents_; ++a)
     for (int b = a + 1; b < n_agents_; ++b)
       if (near(a, b, 2 * window_)) {
         nearby_[a].push_back(b);
         nearby_[b].push_back(a);
+        if (near(a, b, window_)) {
+          close_[a].push_back(b);
+          close_[b].push_back(a);
+        }
       }
 }
 
@@ -107,16 +108,17 @@ bool WindowedPBS::waits_at_start(const int* p, int cell, int t) const {
 }
 
 // RHCR's choice of who gives way in each conflict (find_replan_agents).
-void WindowedPBS::add_replans(Node& n, const std::vector<Conflict>& conflicts, std::unordered_set<int>& replan) {
+void WindowedPBS::add_replans(const Node& n, const std::vector<Conflict>& conflicts,
+                              std::unordered_set<int>& replan) const {
   for (const Conflict& c : conflicts) {
     if (replan.count(c.a1) || replan.count(c.a2)) continue;
     if (prioritize_start_ && waits_at_start(path(n, c.a1), c.v1, c.t)) {
       replan.insert(c.a2);
     } else if (prioritize_start_ && waits_at_start(path(n, c.a2), c.v2, c.t)) {
       replan.insert(c.a1);
-    } else if (connected(c.a1, c.a2)) {
+    } else if (is_above(n, c.a1, c.a2)) {
       replan.insert(c.a1);
-    } else if (connected(c.a2, c.a1)) {
+    } else if (is_above(n, c.a2, c.a1)) {
       replan.insert(c.a2);
     }
   }
@@ -126,14 +128,17 @@ void WindowedPBS::add_replans(Node& n, const std::vector<Conflict>& conflicts, s
 // still wait; the priority graph must be the node's.
 bool WindowedPBS::find_path(Node& n, int agent, const std::vector<AgentQuery>& queries, int n_planned) {
   rt_.clear();
-  std::vector<int>& above = above_;
-  higher_of(agent, above);
-  for (int h : above)
-    if (near(agent, h, 2 * window_)) rt_.add_path(grid_, path(n, h));
+  if (const int r = n.row_of[agent]; r >= 0) {
+    const uint64_t* above = n.rows.data() + static_cast<size_t>(r) * words_;
+    for (int w = 0; w < words_; ++w)
+      for (uint64_t bits = above[w]; bits; bits &= bits - 1) {
+        const int h = w * 64 + __builtin_ctzll(bits);
+        if (h != agent && near(agent, h, 2 * window_)) rt_.add_path(grid_, path(n, h));
+      }
+  }
   if (prioritize_start_)
-    for (int i : nearby_[agent]) {
-      if (i >= n_planned) break;  // nearby_ is in increasing id
-      if (!near(agent, i, window_)) continue;
+    for (int i : close_[agent]) {
+      if (i >= n_planned) break;  // close_ is in increasing id
       const int* p = path(n, i);
       int leave = 1;
       while (leave <= window_ && p[leave] == p[0]) ++leave;
@@ -158,7 +163,6 @@ bool WindowedPBS::find_path(Node& n, int agent, const std::vector<AgentQuery>& q
 // RHCR's find_consistent_paths: replan `agent` (if >= 0), then whoever must give way, until
 // no ordered pair (or start waiter) conflicts; fails past five replans per touched agent.
 bool WindowedPBS::make_consistent(Node& n, int agent, const std::vector<AgentQuery>& queries) {
-  build_graph(n);
   for (int a : n.touched) touched_flag_[a] = 1;
   // RHCR keeps the agents to replan in an unordered_set and always takes begin(): with
   // libstdc++ that is roughly the most recently added agent, not the smallest id. The same
@@ -225,7 +229,7 @@ bool WindowedPBS::solve(const std::vector<AgentQuery>& queries, int executed_ste
   auto root = std::make_unique<Node>();
   root->paths.assign(static_cast<size_t>(n_agents_) * len, kAbsent);
   root->cost.assign(n_agents_, 0);
-  build_graph(*root);
+  root->row_of.assign(n_agents_, -1);
   for (int a = 0; a < n_agents_; ++a)
     if (!find_path(*root, a, queries, a)) std::fill(path(*root, a), path(*root, a) + len, queries[a].start);
   for (int a : root->touched) touched_flag_[a] = 0;
@@ -274,8 +278,10 @@ bool WindowedPBS::solve(const std::vector<AgentQuery>& queries, int executed_ste
       auto child = std::make_unique<Node>();
       child->paths = node->paths;
       child->cost = node->cost;
-      child->edges = node->edges;
-      child->edges.emplace_back(lower, higher);
+      child->row_of = node->row_of;
+      child->rows = node->rows;
+      child->row_owner = node->row_owner;
+      add_edge(*child, lower, higher);
       child->conflicts = node->conflicts;
       child->total_cost = node->total_cost;
       if (!make_consistent(*child, lower, queries)) continue;

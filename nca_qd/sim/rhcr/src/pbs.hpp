@@ -71,7 +71,13 @@ class WindowedPBS {
   struct Node {
     std::vector<int> paths;                   // n_agents * (window + 1), kAbsent after the end
     std::vector<int> cost;                    // per agent, from A*
-    std::vector<std::pair<int, int>> edges;   // (lower, higher)
+    // The priority graph's transitive closure, sparse over the few agents that have someone
+    // above them: row_of[a] indexes a's row in `rows` (words_ words) or is -1, and bit h of
+    // the row is set when h is above a (reachable through one or more "lower below higher"
+    // edges); row_owner lists the agents that have a row.
+    std::vector<int> row_of;
+    std::vector<uint64_t> rows;
+    std::vector<int> row_owner;
     std::vector<Conflict> conflicts;
     std::vector<int> touched;                 // agents replanned in this node (root: all)
     int64_t total_cost = 0;
@@ -81,14 +87,17 @@ class WindowedPBS {
   const int* path(const Node& n, int agent) const { return n.paths.data() + agent * (window_ + 1); }
   int* path(Node& n, int agent) { return n.paths.data() + agent * (window_ + 1); }
 
-  void build_graph(const Node& n);
-  bool higher_of(int agent, std::vector<int>& out, int stop_at = -1);
-  bool connected(int lower, int higher);
+  // Is `higher` above `lower` in the node's priority graph?
+  bool is_above(const Node& n, int lower, int higher) const {
+    const int r = n.row_of[lower];
+    return r >= 0 && ((n.rows[static_cast<size_t>(r) * words_ + (higher >> 6)] >> (higher & 63)) & 1u);
+  }
+  void add_edge(Node& n, int lower, int higher);
   bool near(int a, int b, int reach) const;
   bool conflict_between(const Node& n, int a1, int a2, Conflict& c) const;
   void conflicts_of(const Node& n, int agent, std::vector<Conflict>& out) const;
   bool waits_at_start(const int* p, int cell, int t) const;
-  void add_replans(Node& n, const std::vector<Conflict>& conflicts, std::unordered_set<int>& replan);
+  void add_replans(const Node& n, const std::vector<Conflict>& conflicts, std::unordered_set<int>& replan) const;
   bool find_path(Node& n, int agent, const std::vector<AgentQuery>& queries, int n_planned);
   bool make_consistent(Node& n, int agent, const std::vector<AgentQuery>& queries);
   const Conflict& choose_conflict(Node& n) const;
@@ -103,18 +112,19 @@ class WindowedPBS {
   ReservationTable rt_;
   PbsStats stats_;
   std::set<std::pair<int, int>> nogood_;
-  // Priority graph of the node being processed: higher_[a] lists agents directly above a.
-  std::vector<std::vector<int>> higher_;
-  std::vector<int> graph_agents_;
-  std::vector<uint32_t> mark_;
-  uint32_t mark_stamp_ = 0;
-  std::vector<int> stack_, scratch_, scratch_path_, above_;
+  int words_;  // 64-bit words per row of Node::above
+  std::vector<uint64_t> row_;
+  std::vector<int> scratch_path_;
   std::vector<char> touched_flag_;
   std::vector<int> start_;  // each agent's start cell in the current call
   // Per agent, the other agents whose start cells lie within 2 * window (Manhattan) of its
   // own, in increasing id: the only ones its windowed path can meet (see near()). Built once
   // per call, it spares the conflict checks and reservations a scan over all agents.
   std::vector<std::vector<int>> nearby_;
+  // The same within `window` (whose start cells an agent's path can reach), and the start
+  // cells' rows and columns.
+  std::vector<std::vector<int>> close_;
+  std::vector<int> start_row_, start_col_;
   void build_nearby();
 };
 
