@@ -15,7 +15,8 @@ WindowedPBS::WindowedPBS(const Grid& grid, int n_agents, int window)
       astar_(grid, window),
       rt_(grid.cells(), window),
       words_((n_agents + 63) / 64),
-      touched_flag_(n_agents, 0) {}
+      touched_flag_(n_agents, 0),
+      queued_(n_agents, 0) {}
 
 // Add "lower below higher" and keep the closure: whoever is `lower` or below it is now also
 // below `higher` and everything above `higher`.
@@ -108,18 +109,22 @@ bool WindowedPBS::waits_at_start(const int* p, int cell, int t) const {
 }
 
 // RHCR's choice of who gives way in each conflict (find_replan_agents).
-void WindowedPBS::add_replans(const Node& n, const std::vector<Conflict>& conflicts,
-                              std::unordered_set<int>& replan) const {
+void WindowedPBS::add_replans(const Node& n, const std::vector<Conflict>& conflicts, std::unordered_set<int>& replan) {
   for (const Conflict& c : conflicts) {
-    if (replan.count(c.a1) || replan.count(c.a2)) continue;
+    if (queued_[c.a1] || queued_[c.a2]) continue;  // replan.count(), without hashing
+    int who = -1;
     if (prioritize_start_ && waits_at_start(path(n, c.a1), c.v1, c.t)) {
-      replan.insert(c.a2);
+      who = c.a2;
     } else if (prioritize_start_ && waits_at_start(path(n, c.a2), c.v2, c.t)) {
-      replan.insert(c.a1);
+      who = c.a1;
     } else if (is_above(n, c.a1, c.a2)) {
-      replan.insert(c.a1);
+      who = c.a1;
     } else if (is_above(n, c.a2, c.a1)) {
-      replan.insert(c.a2);
+      who = c.a2;
+    }
+    if (who >= 0) {
+      replan.insert(who);
+      queued_[who] = 1;
     }
   }
 }
@@ -168,7 +173,10 @@ bool WindowedPBS::make_consistent(Node& n, int agent, const std::vector<AgentQue
   // libstdc++ that is roughly the most recently added agent, not the smallest id. The same
   // container, filled and emptied in the same sequence, replans in the reference's order.
   std::unordered_set<int> replan;
-  if (agent >= 0) replan.insert(agent);
+  if (agent >= 0) {
+    replan.insert(agent);
+    queued_[agent] = 1;
+  }
   add_replans(n, n.conflicts, replan);
   bool ok = true;
   size_t count = 0;
@@ -180,6 +188,7 @@ bool WindowedPBS::make_consistent(Node& n, int agent, const std::vector<AgentQue
     }
     const int a = *replan.begin();
     replan.erase(a);
+    queued_[a] = 0;
     ++count;
     if (!find_path(n, a, queries, n_agents_)) {
       ok = false;
@@ -194,6 +203,7 @@ bool WindowedPBS::make_consistent(Node& n, int agent, const std::vector<AgentQue
     n.conflicts.insert(n.conflicts.end(), fresh.begin(), fresh.end());
   }
   for (int a : n.touched) touched_flag_[a] = 0;
+  for (int a : replan) queued_[a] = 0;
   return ok;
 }
 
@@ -279,7 +289,8 @@ bool WindowedPBS::solve(const std::vector<AgentQuery>& queries, int executed_ste
       child->paths = node->paths;
       child->cost = node->cost;
       child->row_of = node->row_of;
-      child->rows = node->rows;
+      child->rows.reserve(node->rows.size() + words_);  // room for add_edge's new row
+      child->rows.assign(node->rows.begin(), node->rows.end());
       child->row_owner = node->row_owner;
       add_edge(*child, lower, higher);
       child->conflicts = node->conflicts;

@@ -97,7 +97,7 @@ class WindowedPBS {
   bool conflict_between(const Node& n, int a1, int a2, Conflict& c) const;
   void conflicts_of(const Node& n, int agent, std::vector<Conflict>& out) const;
   bool waits_at_start(const int* p, int cell, int t) const;
-  void add_replans(const Node& n, const std::vector<Conflict>& conflicts, std::unordered_set<int>& replan) const;
+  void add_replans(const Node& n, const std::vector<Conflict>& conflicts, std::unordered_set<int>& replan);
   bool find_path(Node& n, int agent, const std::vector<AgentQuery>& queries, int n_planned);
   bool make_consistent(Node& n, int agent, const std::vector<AgentQuery>& queries);
   const Conflict& choose_conflict(Node& n) const;
@@ -116,6 +116,7 @@ class WindowedPBS {
   std::vector<uint64_t> row_;
   std::vector<int> scratch_path_;
   std::vector<char> touched_flag_;
+  std::vector<char> queued_;  // mirrors make_consistent's set of agents to replan
   std::vector<int> start_;  // each agent's start cell in the current call
   // Per agent, the other agents whose start cells lie within 2 * window (Manhattan) of its
   // own, in increasing id: the only ones its windowed path can meet (see near()). Built once
