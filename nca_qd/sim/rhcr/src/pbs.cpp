@@ -16,7 +16,13 @@ WindowedPBS::WindowedPBS(const Grid& grid, int n_agents, int window)
       rt_(grid.cells(), window),
       words_((n_agents + 63) / 64),
       touched_flag_(n_agents, 0),
-      queued_(n_agents, 0) {}
+      queued_(n_agents, 0) {
+  cell_area_.resize(grid.cells());
+  for (int cell = 0; cell < grid.cells(); ++cell) {
+    const int r = cell / grid.cols() * 8 / grid.rows(), c = cell % grid.cols() * 8 / grid.cols();
+    cell_area_[cell] = uint64_t{1} << (r * 8 + c);
+  }
+}
 
 // Add "lower below higher" and keep the closure: whoever is `lower` or below it is now also
 // below `higher` and everything above `higher`.
@@ -50,6 +56,7 @@ bool WindowedPBS::near(int a, int b, int reach) const {
 // RHCR's conflict test between two paths within the window: the first vertex conflict or
 // swap in time order. Callers only ask about pairs of nearby_ (others never meet).
 bool WindowedPBS::conflict_between(const Node& n, int a1, int a2, Conflict& c) const {
+  if (!(n.area[a1] & n.area[a2])) return false;
   const int* p = path(n, a1);
   const int* q = path(n, a2);
   // Most pairs never meet: rule them out with one branch-free pass (kAbsent cells may match
@@ -156,6 +163,7 @@ bool WindowedPBS::find_path(Node& n, int agent, const std::vector<AgentQuery>& q
   if (!ok && prioritize_start_) ok = astar_.plan(rt_, queries[agent], buf.data(), cost, true);
   if (!ok) return false;
   std::copy(buf.begin(), buf.end(), path(n, agent));
+  n.area[agent] = area_of(buf.data());
   n.total_cost += cost - n.cost[agent];
   n.cost[agent] = cost;
   if (!touched_flag_[agent]) {
@@ -240,8 +248,12 @@ bool WindowedPBS::solve(const std::vector<AgentQuery>& queries, int executed_ste
   root->paths.assign(static_cast<size_t>(n_agents_) * len, kAbsent);
   root->cost.assign(n_agents_, 0);
   root->row_of.assign(n_agents_, -1);
+  root->area.assign(n_agents_, 0);
   for (int a = 0; a < n_agents_; ++a)
-    if (!find_path(*root, a, queries, a)) std::fill(path(*root, a), path(*root, a) + len, queries[a].start);
+    if (!find_path(*root, a, queries, a)) {
+      std::fill(path(*root, a), path(*root, a) + len, queries[a].start);
+      root->area[a] = area_of(path(*root, a));
+    }
   for (int a : root->touched) touched_flag_[a] = 0;
   if (static_cast<int>(root->touched.size()) < n_agents_) {
     repair(*root, queries, executed_steps, rng, out);
@@ -292,6 +304,7 @@ bool WindowedPBS::solve(const std::vector<AgentQuery>& queries, int executed_ste
       child->rows.reserve(node->rows.size() + words_);  // room for add_edge's new row
       child->rows.assign(node->rows.begin(), node->rows.end());
       child->row_owner = node->row_owner;
+      child->area = node->area;
       add_edge(*child, lower, higher);
       child->conflicts = node->conflicts;
       child->total_cost = node->total_cost;

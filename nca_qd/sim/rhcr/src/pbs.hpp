@@ -78,6 +78,9 @@ class WindowedPBS {
     std::vector<int> row_of;
     std::vector<uint64_t> rows;
     std::vector<int> row_owner;
+    // Per agent, the areas its path crosses (one bit per block of an 8 x 8 division of the
+    // map): two paths can only meet where their areas overlap.
+    std::vector<uint64_t> area;
     std::vector<Conflict> conflicts;
     std::vector<int> touched;                 // agents replanned in this node (root: all)
     int64_t total_cost = 0;
@@ -126,6 +129,12 @@ class WindowedPBS {
   // cells' rows and columns.
   std::vector<std::vector<int>> close_;
   std::vector<int> start_row_, start_col_;
+  std::vector<uint64_t> cell_area_;  // the area bit of each cell
+  uint64_t area_of(const int* p) const {
+    uint64_t m = 0;
+    for (int t = 0; t <= window_ && p[t] != kAbsent; ++t) m |= cell_area_[p[t]];
+    return m;
+  }
   void build_nearby();
 };
 
