@@ -255,6 +255,9 @@ def shelf_blocks(n_rows: int, n_cols: int) -> list[str]:
          (1210, 300, 29, 5731, 359019, "e1714905445f6ef1")),
         ("dwell", MANUFACTURING, "manufacturing", 14, 200, {},
          (185, 200, 0, 346, 35768, "265586f0a21ddc21")),
+        # more than 64 agents above others in one search (the closure's rows widen)
+        ("deep priority order", shelf_blocks(21, 28), "warehouse_uneven", 120, 150, {"pbs_max_nodes": 300},
+         (791, 150, 0, 5844, 652790, "c6441840156b9705")),
     ],
 )  # fmt: skip
 def test_planner_decisions_are_pinned(case, rows, scenario, n, T, kw, expected):

@@ -14,7 +14,6 @@ WindowedPBS::WindowedPBS(const Grid& grid, int n_agents, int window)
       window_(window),
       astar_(grid, window),
       rt_(grid.cells(), window),
-      words_((n_agents + 63) / 64),
       touched_flag_(n_agents, 0),
       queued_(n_agents, 0) {
   cell_area_.resize(grid.cells());
@@ -27,22 +26,37 @@ WindowedPBS::WindowedPBS(const Grid& grid, int n_agents, int window)
 // Add "lower below higher" and keep the closure: whoever is `lower` or below it is now also
 // below `higher` and everything above `higher`.
 void WindowedPBS::add_edge(Node& n, int lower, int higher) {
+  if (n.col_of[higher] < 0) {
+    const int c = static_cast<int>(n.col_agent.size());
+    n.col_of[higher] = c;
+    n.col_agent.push_back(higher);
+    if (c >= n.stride * 64) {  // widen every row by one word
+      const int old = n.stride++;
+      std::vector<uint64_t> wide(n.row_owner.size() * n.stride, 0);
+      for (size_t r = 0; r < n.row_owner.size(); ++r)
+        std::copy(n.rows.begin() + r * old, n.rows.begin() + (r + 1) * old, wide.begin() + r * n.stride);
+      n.rows = std::move(wide);
+    }
+  }
+  const int stride = n.stride;
   const int rh = n.row_of[higher];
   if (rh >= 0)
-    row_.assign(n.rows.begin() + static_cast<size_t>(rh) * words_, n.rows.begin() + static_cast<size_t>(rh + 1) * words_);
+    row_.assign(n.rows.begin() + static_cast<size_t>(rh) * stride, n.rows.begin() + static_cast<size_t>(rh + 1) * stride);
   else
-    row_.assign(words_, 0);
-  row_[higher >> 6] |= uint64_t{1} << (higher & 63);
+    row_.assign(stride, 0);
+  const int ch = n.col_of[higher];
+  row_[ch >> 6] |= uint64_t{1} << (ch & 63);
   auto merge = [&](int x) {
-    uint64_t* r = n.rows.data() + static_cast<size_t>(n.row_of[x]) * words_;
-    for (int w = 0; w < words_; ++w) r[w] |= row_[w];
+    uint64_t* r = n.rows.data() + static_cast<size_t>(n.row_of[x]) * stride;
+    for (int w = 0; w < stride; ++w) r[w] |= row_[w];
   };
-  for (int x : n.row_owner)
-    if (x != lower && is_above(n, x, lower)) merge(x);
+  if (n.col_of[lower] >= 0)  // else nobody is below `lower`
+    for (int x : n.row_owner)
+      if (x != lower && is_above(n, x, lower)) merge(x);
   if (n.row_of[lower] < 0) {
     n.row_of[lower] = static_cast<int>(n.row_owner.size());
     n.row_owner.push_back(lower);
-    n.rows.resize(n.rows.size() + words_, 0);
+    n.rows.resize(n.rows.size() + stride, 0);
   }
   merge(lower);
 }
@@ -141,10 +155,10 @@ void WindowedPBS::add_replans(const Node& n, const std::vector<Conflict>& confli
 bool WindowedPBS::find_path(Node& n, int agent, const std::vector<AgentQuery>& queries, int n_planned) {
   rt_.clear();
   if (const int r = n.row_of[agent]; r >= 0) {
-    const uint64_t* above = n.rows.data() + static_cast<size_t>(r) * words_;
-    for (int w = 0; w < words_; ++w)
+    const uint64_t* above = n.rows.data() + static_cast<size_t>(r) * n.stride;
+    for (int w = 0; w < n.stride; ++w)
       for (uint64_t bits = above[w]; bits; bits &= bits - 1) {
-        const int h = w * 64 + __builtin_ctzll(bits);
+        const int h = n.col_agent[w * 64 + __builtin_ctzll(bits)];
         if (h != agent && near(agent, h, 2 * window_)) rt_.add_path(grid_, path(n, h));
       }
   }
@@ -248,6 +262,7 @@ bool WindowedPBS::solve(const std::vector<AgentQuery>& queries, int executed_ste
   root->paths.assign(static_cast<size_t>(n_agents_) * len, kAbsent);
   root->cost.assign(n_agents_, 0);
   root->row_of.assign(n_agents_, -1);
+  root->col_of.assign(n_agents_, -1);
   root->area.assign(n_agents_, 0);
   for (int a = 0; a < n_agents_; ++a)
     if (!find_path(*root, a, queries, a)) {
@@ -301,9 +316,12 @@ bool WindowedPBS::solve(const std::vector<AgentQuery>& queries, int executed_ste
       child->paths = node->paths;
       child->cost = node->cost;
       child->row_of = node->row_of;
-      child->rows.reserve(node->rows.size() + words_);  // room for add_edge's new row
+      child->col_of = node->col_of;
+      child->rows.reserve(node->rows.size() + node->stride);  // room for add_edge's new row
       child->rows.assign(node->rows.begin(), node->rows.end());
       child->row_owner = node->row_owner;
+      child->col_agent = node->col_agent;
+      child->stride = node->stride;
       child->area = node->area;
       add_edge(*child, lower, higher);
       child->conflicts = node->conflicts;

@@ -71,13 +71,15 @@ class WindowedPBS {
   struct Node {
     std::vector<int> paths;                   // n_agents * (window + 1), kAbsent after the end
     std::vector<int> cost;                    // per agent, from A*
-    // The priority graph's transitive closure, sparse over the few agents that have someone
-    // above them: row_of[a] indexes a's row in `rows` (words_ words) or is -1, and bit h of
-    // the row is set when h is above a (reachable through one or more "lower below higher"
-    // edges); row_owner lists the agents that have a row.
-    std::vector<int> row_of;
+    // The priority graph's transitive closure, sparse both ways: a row for each agent that
+    // has someone above it, a column for each agent that is above someone. row_of[a] is a's
+    // row in `rows` (`stride` words each) or -1; col_of[h] is h's column (col_agent[c] the
+    // agent of column c) or -1. Bit col_of[h] of a's row is set when h is above a (reachable
+    // through one or more "lower below higher" edges); row_owner lists the agents with a row.
+    std::vector<int> row_of, col_of;
     std::vector<uint64_t> rows;
-    std::vector<int> row_owner;
+    std::vector<int> row_owner, col_agent;
+    int stride = 1;
     // Per agent, the areas its path crosses (one bit per block of an 8 x 8 division of the
     // map): two paths can only meet where their areas overlap.
     std::vector<uint64_t> area;
@@ -92,8 +94,8 @@ class WindowedPBS {
 
   // Is `higher` above `lower` in the node's priority graph?
   bool is_above(const Node& n, int lower, int higher) const {
-    const int r = n.row_of[lower];
-    return r >= 0 && ((n.rows[static_cast<size_t>(r) * words_ + (higher >> 6)] >> (higher & 63)) & 1u);
+    const int r = n.row_of[lower], c = n.col_of[higher];
+    return r >= 0 && c >= 0 && ((n.rows[static_cast<size_t>(r) * n.stride + (c >> 6)] >> (c & 63)) & 1u);
   }
   void add_edge(Node& n, int lower, int higher);
   bool near(int a, int b, int reach) const;
@@ -115,7 +117,6 @@ class WindowedPBS {
   ReservationTable rt_;
   PbsStats stats_;
   std::set<std::pair<int, int>> nogood_;
-  int words_;  // 64-bit words per row of Node::above
   std::vector<uint64_t> row_;
   std::vector<int> scratch_path_;
   std::vector<char> touched_flag_;
