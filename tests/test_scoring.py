@@ -210,6 +210,9 @@ def test_scoring_config_rejects_bad_values():
     assert uneven.domain.simulation.screen_crowd_mean == 19.25
     assert ScoringConfig.from_cfg(uneven.eval).screen_estimate == "scaled"
     assert compose_config("run", ["domain=warehouse_even"]).eval.screen_estimate == "free_flow"
+    manufacturing = compose_config("run", ["domain=manufacturing"])  # likewise, its own
+    assert manufacturing.domain.simulation.screen_crowd_mean == 18
+    assert ScoringConfig.from_cfg(manufacturing.eval).screen_estimate == "scaled"
     # ... and the congested-layout share it ran with; the shipped config names today's fit
     from omegaconf import OmegaConf
 
