@@ -678,13 +678,16 @@ def crowd_threshold() -> None:
     halves = {"calibration": np.sort(order[: len(order) // 2]), "check": np.sort(order[len(order) // 2 :])}
     tiles = get_layout(scenario, "domain").tiles
 
-    def screen(entries_, congestion, threshold=CROWD_MEAN):
-        scens = [
+    def scenarios(entries_):
+        return [
             build_scenario(
                 array_to_rows(memo["repair_layouts"][by_key[bytes(memo["exact_keys"][j])]], tiles), scenario
             )
             for j in entries_
         ]
+
+    def screen(entries_, congestion, threshold=CROWD_MEAN):
+        scens = scenarios(entries_)
         return [
             row
             for a in range(0, len(scens), 64)
@@ -722,18 +725,7 @@ def crowd_threshold() -> None:
     # The free-flow estimate's efficiency (RHCR's share of free flow where it flows), fitted
     # as a search fits it: the mean share over the calibration half's flowing RHCR runs.
     def free_flows(entries_):
-        return np.array(
-            [
-                free_flow_throughput(
-                    build_scenario(
-                        array_to_rows(memo["repair_layouts"][by_key[bytes(memo["exact_keys"][j])]], tiles),
-                        scenario,
-                    ),
-                    AGENTS,
-                )
-                for j in entries_
-            ]
-        )
+        return np.array([free_flow_throughput(scen, AGENTS) for scen in scenarios(entries_)])
 
     flowed = memo["exact_success"][cal].astype(bool)
     shares = (memo["exact_throughput"][cal] / free_flows(cal)[:, None])[flowed]
