@@ -23,44 +23,6 @@ WindowedPBS::WindowedPBS(const Grid& grid, int n_agents, int window)
   }
 }
 
-// Add "lower below higher" and keep the closure: whoever is `lower` or below it is now also
-// below `higher` and everything above `higher`.
-void WindowedPBS::add_edge(Node& n, int lower, int higher) {
-  if (n.col_of[higher] < 0) {
-    const int c = static_cast<int>(n.col_agent.size());
-    n.col_of[higher] = c;
-    n.col_agent.push_back(higher);
-    if (c >= n.stride * 64) {  // widen every row by one word
-      const int old = n.stride++;
-      std::vector<uint64_t> wide(n.row_owner.size() * n.stride, 0);
-      for (size_t r = 0; r < n.row_owner.size(); ++r)
-        std::copy(n.rows.begin() + r * old, n.rows.begin() + (r + 1) * old, wide.begin() + r * n.stride);
-      n.rows = std::move(wide);
-    }
-  }
-  const int stride = n.stride;
-  const int rh = n.row_of[higher];
-  if (rh >= 0)
-    row_.assign(n.rows.begin() + static_cast<size_t>(rh) * stride, n.rows.begin() + static_cast<size_t>(rh + 1) * stride);
-  else
-    row_.assign(stride, 0);
-  const int ch = n.col_of[higher];
-  row_[ch >> 6] |= uint64_t{1} << (ch & 63);
-  auto merge = [&](int x) {
-    uint64_t* r = n.rows.data() + static_cast<size_t>(n.row_of[x]) * stride;
-    for (int w = 0; w < stride; ++w) r[w] |= row_[w];
-  };
-  if (n.col_of[lower] >= 0)  // else nobody is below `lower`
-    for (int x : n.row_owner)
-      if (x != lower && is_above(n, x, lower)) merge(x);
-  if (n.row_of[lower] < 0) {
-    n.row_of[lower] = static_cast<int>(n.row_owner.size());
-    n.row_owner.push_back(lower);
-    n.rows.resize(n.rows.size() + stride, 0);
-  }
-  merge(lower);
-}
-
 // Can agents a and b come within `reach` of each other? Each moves at most `window` cells
 // from its start, so pairs whose starts are farther apart never interact.
 bool WindowedPBS::near(int a, int b, int reach) const {
@@ -138,9 +100,9 @@ void WindowedPBS::add_replans(const Node& n, const std::vector<Conflict>& confli
       who = c.a2;
     } else if (prioritize_start_ && waits_at_start(path(n, c.a2), c.v2, c.t)) {
       who = c.a1;
-    } else if (is_above(n, c.a1, c.a2)) {
+    } else if (n.order.is_above(c.a1, c.a2)) {
       who = c.a1;
-    } else if (is_above(n, c.a2, c.a1)) {
+    } else if (n.order.is_above(c.a2, c.a1)) {
       who = c.a2;
     }
     if (who >= 0) {
@@ -154,14 +116,9 @@ void WindowedPBS::add_replans(const Node& n, const std::vector<Conflict>& confli
 // still wait; the priority graph must be the node's.
 bool WindowedPBS::find_path(Node& n, int agent, const std::vector<AgentQuery>& queries, int n_planned) {
   rt_.clear();
-  if (const int r = n.row_of[agent]; r >= 0) {
-    const uint64_t* above = n.rows.data() + static_cast<size_t>(r) * n.stride;
-    for (int w = 0; w < n.stride; ++w)
-      for (uint64_t bits = above[w]; bits; bits &= bits - 1) {
-        const int h = n.col_agent[w * 64 + __builtin_ctzll(bits)];
-        if (h != agent && near(agent, h, 2 * window_)) rt_.add_path(grid_, path(n, h));
-      }
-  }
+  n.order.for_each_above(agent, [&](int h) {
+    if (h != agent && near(agent, h, 2 * window_)) rt_.add_path(grid_, path(n, h));
+  });
   if (prioritize_start_)
     for (int i : close_[agent]) {
       if (i >= n_planned) break;  // close_ is in increasing id
@@ -202,7 +159,7 @@ bool WindowedPBS::make_consistent(Node& n, int agent, const std::vector<AgentQue
   add_replans(n, n.conflicts, replan);
   bool ok = true;
   size_t count = 0;
-  std::vector<Conflict> fresh;
+  std::vector<Conflict>& fresh = fresh_;
   while (!replan.empty()) {
     if (count > n.touched.size() * 5) {
       ok = false;
@@ -258,50 +215,61 @@ bool WindowedPBS::solve(const std::vector<AgentQuery>& queries, int executed_ste
   build_nearby();
 
   // Root: every agent alone, in id order, avoiding the start cells of those planned before.
-  auto root = std::make_unique<Node>();
+  std::unique_ptr<Node> root = take_node();
   root->paths.assign(static_cast<size_t>(n_agents_) * len, kAbsent);
   root->cost.assign(n_agents_, 0);
-  root->row_of.assign(n_agents_, -1);
-  root->col_of.assign(n_agents_, -1);
+  root->order.reset(n_agents_);
   root->area.assign(n_agents_, 0);
+  root->conflicts.clear();
+  root->total_cost = 0;
   for (int a = 0; a < n_agents_; ++a)
     if (!find_path(*root, a, queries, a)) {
       std::fill(path(*root, a), path(*root, a) + len, queries[a].start);
       root->area[a] = area_of(path(*root, a));
     }
   for (int a : root->touched) touched_flag_[a] = 0;
-  if (static_cast<int>(root->touched.size()) < n_agents_) {
-    repair(*root, queries, executed_steps, rng, out);
+  // Whatever the search still holds when it returns goes back to the pool.
+  std::vector<std::unique_ptr<Node>> stack;
+  struct Recycle {
+    WindowedPBS& pbs;
+    std::vector<std::unique_ptr<Node>>& nodes;
+    ~Recycle() {
+      for (auto& node : nodes) pbs.recycle(std::move(node));
+    }
+  } recycle_on_return{*this, stack};
+  stack.push_back(std::move(root));
+  Node& r = *stack.back();
+  if (static_cast<int>(r.touched.size()) < n_agents_) {
+    repair(r, queries, executed_steps, rng, out);
     return false;
   }
   Conflict c;
   for (int a = 0; a < n_agents_; ++a)
     for (int b : nearby_[a])
-      if (b > a && conflict_between(*root, a, b, c)) root->conflicts.push_back(c);
-  if (!make_consistent(*root, -1, queries)) {
-    repair(*root, queries, executed_steps, rng, out);
+      if (b > a && conflict_between(r, a, b, c)) r.conflicts.push_back(c);
+  if (!make_consistent(r, -1, queries)) {
+    repair(r, queries, executed_steps, rng, out);
     return false;
   }
-  if (root->conflicts.empty()) {
-    out = std::move(root->paths);
+  if (r.conflicts.empty()) {
+    out.swap(r.paths);
     return true;
   }
 
-  const int64_t min_cost = root->total_cost;
-  std::vector<std::unique_ptr<Node>> stack;
-  stack.push_back(std::move(root));
+  const int64_t min_cost = r.total_cost;
   Node best;  // best expanded node: latest first conflict, then smaller cost
   bool have_best = false;
   int64_t expanded = 0;
   while (!stack.empty()) {
     if (out_of_time(limits, expanded, cpu0)) {
-      if (!have_best) best = std::move(*stack.back());  // nothing expanded yet: the root
+      if (!have_best) std::swap(best, *stack.back());  // nothing expanded yet: the root
       break;
     }
     std::unique_ptr<Node> node = std::move(stack.back());
     stack.pop_back();
     if (node->conflicts.empty()) {
-      out = std::move(node->paths);
+      out.swap(node->paths);
+      recycle(std::move(node));
       return true;
     }
     const Conflict conflict = choose_conflict(*node);
@@ -312,33 +280,34 @@ bool WindowedPBS::solve(const std::vector<AgentQuery>& queries, int executed_ste
     for (int k = 0; k < 2; ++k) {
       const int lower = k == 0 ? conflict.a1 : conflict.a2;
       const int higher = k == 0 ? conflict.a2 : conflict.a1;
-      auto child = std::make_unique<Node>();
+      std::unique_ptr<Node> child = take_node();
       child->paths = node->paths;
       child->cost = node->cost;
-      child->row_of = node->row_of;
-      child->col_of = node->col_of;
-      child->rows.reserve(node->rows.size() + node->stride);  // room for add_edge's new row
-      child->rows.assign(node->rows.begin(), node->rows.end());
-      child->row_owner = node->row_owner;
-      child->col_agent = node->col_agent;
-      child->stride = node->stride;
+      child->order.copy_from(node->order);
       child->area = node->area;
-      add_edge(*child, lower, higher);
+      child->order.add_edge(lower, higher, row_);
       child->conflicts = node->conflicts;
       child->total_cost = node->total_cost;
-      if (!make_consistent(*child, lower, queries)) continue;
+      if (!make_consistent(*child, lower, queries)) {
+        recycle(std::move(child));
+        continue;
+      }
       ++stats_.nodes_generated;
       if (child->total_cost == min_cost && child->conflicts.empty()) {
-        out = std::move(child->paths);
+        out.swap(child->paths);
+        recycle(std::move(child));
+        recycle(std::move(children[0]));
+        recycle(std::move(node));
         return true;
       }
       children[k] = std::move(child);
     }
     if (!have_best || node->earliest > best.earliest ||
         (node->earliest == best.earliest && node->total_cost < best.total_cost)) {
-      best = std::move(*node);
+      std::swap(best, *node);  // the node keeps the old best's buffers for reuse
       have_best = true;
     }
+    recycle(std::move(node));
     if (children[0] && children[1]) {
       const bool first_better =
           children[0]->total_cost < children[1]->total_cost ||
@@ -355,6 +324,22 @@ bool WindowedPBS::solve(const std::vector<AgentQuery>& queries, int executed_ste
   }
   repair(best, queries, executed_steps, rng, out);
   return false;
+}
+
+std::unique_ptr<WindowedPBS::Node> WindowedPBS::take_node() {
+  if (pool_.empty()) return std::make_unique<Node>();
+  std::unique_ptr<Node> node = std::move(pool_.back());
+  pool_.pop_back();
+  node->touched.clear();
+  node->total_cost = 0;
+  node->earliest = 1 << 30;
+  return node;
+}
+
+void WindowedPBS::recycle(std::unique_ptr<Node> node) {
+  // A few dozen spare nodes cover the depth-first search's churn; more would only hold memory
+  // (a node at 1,400 agents holds about 0.3 MB).
+  if (node && pool_.size() < 64) pool_.push_back(std::move(node));
 }
 
 // RHCR's LRA* repair of a failed call, plus a swap check: execute `executed_steps` steps of

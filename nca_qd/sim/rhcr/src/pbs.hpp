@@ -29,6 +29,7 @@
 
 #include <chrono>
 #include <cstdint>
+#include <memory>
 #include <set>
 #include <unordered_set>
 #include <utility>
@@ -36,6 +37,7 @@
 
 #include "astar.hpp"
 #include "grid.hpp"
+#include "priority_order.hpp"
 #include "rng.hpp"
 
 namespace rhcr {
@@ -71,15 +73,7 @@ class WindowedPBS {
   struct Node {
     std::vector<int> paths;                   // n_agents * (window + 1), kAbsent after the end
     std::vector<int> cost;                    // per agent, from A*
-    // The priority graph's transitive closure, sparse both ways: a row for each agent that
-    // has someone above it, a column for each agent that is above someone. row_of[a] is a's
-    // row in `rows` (`stride` words each) or -1; col_of[h] is h's column (col_agent[c] the
-    // agent of column c) or -1. Bit col_of[h] of a's row is set when h is above a (reachable
-    // through one or more "lower below higher" edges); row_owner lists the agents with a row.
-    std::vector<int> row_of, col_of;
-    std::vector<uint64_t> rows;
-    std::vector<int> row_owner, col_agent;
-    int stride = 1;
+    PriorityOrder order;                      // who is above whom (priority_order.hpp)
     // Per agent, the areas its path crosses (one bit per block of an 8 x 8 division of the
     // map): two paths can only meet where their areas overlap.
     std::vector<uint64_t> area;
@@ -92,12 +86,6 @@ class WindowedPBS {
   const int* path(const Node& n, int agent) const { return n.paths.data() + agent * (window_ + 1); }
   int* path(Node& n, int agent) { return n.paths.data() + agent * (window_ + 1); }
 
-  // Is `higher` above `lower` in the node's priority graph?
-  bool is_above(const Node& n, int lower, int higher) const {
-    const int r = n.row_of[lower], c = n.col_of[higher];
-    return r >= 0 && c >= 0 && ((n.rows[static_cast<size_t>(r) * n.stride + (c >> 6)] >> (c & 63)) & 1u);
-  }
-  void add_edge(Node& n, int lower, int higher);
   bool near(int a, int b, int reach) const;
   bool conflict_between(const Node& n, int a1, int a2, Conflict& c) const;
   void conflicts_of(const Node& n, int agent, std::vector<Conflict>& out) const;
@@ -117,7 +105,7 @@ class WindowedPBS {
   ReservationTable rt_;
   PbsStats stats_;
   std::set<std::pair<int, int>> nogood_;
-  std::vector<uint64_t> row_;
+  std::vector<uint64_t> row_;  // PriorityOrder::add_edge's scratch
   std::vector<int> scratch_path_;
   std::vector<char> touched_flag_;
   std::vector<char> queued_;  // mirrors make_consistent's set of agents to replan
@@ -137,6 +125,14 @@ class WindowedPBS {
     return m;
   }
   void build_nearby();
+
+  // Nodes are recycled within and across calls: a child is copied into a spent node's
+  // buffers, so expanding a node allocates nothing once the pool is warm (at 200 agents the
+  // copies' allocations were a tenth of the planner's time).
+  std::vector<std::unique_ptr<Node>> pool_;
+  std::unique_ptr<Node> take_node();
+  void recycle(std::unique_ptr<Node> node);
+  std::vector<Conflict> fresh_;  // make_consistent's conflicts of the agent just replanned
 };
 
 }  // namespace rhcr
