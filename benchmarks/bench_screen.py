@@ -587,13 +587,17 @@ def fidelity_large() -> None:
         screened = simulate_scenarios(scens, n, steps, seeds, crowd_mean=crowd)
         for (name, rows), scen, sc in zip(layouts, scens, screened):
             key = f"{name}|{h}x{w}|{n}|{steps}" + ("" if domain == SCENARIO else f"|{domain}")
-            known = done.get(key, [])
-            if len(known) < len(seeds):  # RHCR for the seeds not cached yet
-                more = simulate_many(rows, domain, n, steps, seeds[len(known) :])
-                done[key] = known + [[r.throughput, r.success, r.stop_time] for r in more]
+            known = done.get(key, {})
+            if isinstance(known, list):  # the older cache: a list for seeds 0, 1, ...
+                known = {str(i): run for i, run in enumerate(known)}
+            missing = [s for s in seeds if str(s) not in known]
+            if missing:  # RHCR for the seeds not cached yet
+                more = simulate_many(rows, domain, n, steps, missing)
+                known.update({str(s): [r.throughput, r.success, r.stop_time] for s, r in zip(missing, more)})
+                done[key] = known
                 if cache:
                     Path(cache).write_text(json.dumps(done))
-            exact = done[key][: len(seeds)]
+            exact = [known[str(s)] for s in seeds]
             for (tp, ok, stop), r in zip(exact, sc):
                 agree.append(bool(ok) == bool(r.success))
                 print(
@@ -611,11 +615,8 @@ def fidelity_large() -> None:
                 estimates = {"raw": raw, "scaled": CONGESTED_SCALE * raw, "free_flow": EFFICIENCY * flow}
                 for kind, value in estimates.items():
                     ratios[kind].append(value / rhcr_tp)
-                print(
-                    f"    both flow: RHCR {rhcr_tp:.2f}; screen {raw:.2f} (x{raw / rhcr_tp:.3f}), "
-                    f"scaled x{CONGESTED_SCALE * raw / rhcr_tp:.3f}, free-flow estimate "
-                    f"x{EFFICIENCY * flow / rhcr_tp:.3f} (free flow {flow:.2f})"
-                )
+                shares = ", ".join(f"{kind} x{value / rhcr_tp:.3f}" for kind, value in estimates.items())
+                print(f"    both flow: RHCR {rhcr_tp:.2f}, screen {raw:.2f}; {shares} (free flow {flow:.2f})")
     print(
         json.dumps(
             {
