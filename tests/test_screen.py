@@ -186,6 +186,55 @@ def test_crowding_proxy_stops_a_packed_room_that_rhcrs_rule_lets_run():
         screen.crowd_mean_for({"simulation": {"screen_crowd_mean": "high"}})
 
 
+def _top_blocks_mean(cells: np.ndarray, shape: tuple[int, int], rank: int) -> float:
+    """Independent check: the mean agent count of the ``rank`` most crowded 5x5 blocks."""
+    grid = np.zeros(shape, int)
+    np.add.at(grid, (cells[:, 0], cells[:, 1]), 1)
+    k = screen.DENSITY_K
+    blocks = np.lib.stride_tricks.sliding_window_view(grid, (k, k)).sum((-1, -2))
+    return float(np.sort(blocks.ravel())[::-1][:rank].mean())
+
+
+def test_crowding_on_a_larger_map_averages_its_most_crowded_blocks():
+    """Up to a 33x36 map the rule tests the most crowded block; on a larger one the mean of its
+    r most crowded blocks (r = one per 33x36 map's blocks), recomputed here from the paths."""
+    assert screen.crowd_rank(33, 36) == 1 and screen.crowd_rank(9, 9) == 1
+    assert screen.crowd_rank(101, 102) == 10 and screen.crowd_rank(36, 54) == 2
+    room = [
+        "w.......w",
+        ".eeeeeee.",
+        ".........",
+        ".eeeeeee.",
+    ] * 9
+    room = [row * 6 for row in room]  # 36 x 54
+    n, horizon = 400, 60
+    moved = simulate(room, "warehouse_even", n, horizon, 0, record_paths=True, congestion="moved")
+    check_run(moved, room)
+    assert moved.success
+    times = np.arange(screen.CROWD_MIN_CHECKS + 2) * 5 + 5
+    expected = [_top_blocks_mean(moved.paths[t], (36, 54), 2) for t in times]
+    np.testing.assert_allclose(moved.crowding[: len(times)], expected)
+    # The rule on that mean: a threshold just below its running mean at the 10th check stops the
+    # run there; the same run, up to then, as RHCR's rule's.
+    first = float(np.mean(moved.crowding[: screen.CROWD_MIN_CHECKS]))
+    stopped = simulate(
+        room,
+        "warehouse_even",
+        n,
+        horizon,
+        0,
+        record_paths=True,
+        congestion="crowding",
+        crowd_mean=first - 0.01,
+    )
+    assert stopped.congested and stopped.stop_time == 5 * screen.CROWD_MIN_CHECKS
+    np.testing.assert_array_equal(moved.paths[: stopped.stop_time + 1], stopped.paths)
+    flows = simulate(
+        room, "warehouse_even", n, horizon, 0, congestion="crowding", crowd_mean=moved.crowding.max() + 0.01
+    )
+    assert flows.success and flows.stop_time == horizon
+
+
 @pytest.mark.parametrize(
     "option, message",
     [
@@ -295,7 +344,7 @@ def test_distance_tables_split_over_threads_are_the_same(monkeypatch):
 # The digest of reference runs per screen VERSION: a change to the screen that alters any of
 # them must bump nca_qd.sim.screen.VERSION (recorded evaluation runs of the old version are
 # then not reused) and add the new digest here.
-SCREEN_DIGESTS = {1: "5cdee9f36383286f"}
+SCREEN_DIGESTS = {1: "5cdee9f36383286f", 2: "5cdee9f36383286f"}  # 2: larger maps only
 
 
 def _screen_digest() -> str:
