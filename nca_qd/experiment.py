@@ -326,34 +326,35 @@ class Experiment:
         every = int(cfg.algo.get("checkpoint_every", cfg.qd.checkpoint_every))
         last_saved = start_iter
         try:
-            with (self.run_dir / METRICS_FILE).open("a", newline="") as fh:
-                writer = csv.DictWriter(fh, fieldnames=self.metric_columns, extrasaction="ignore")
-                while not self._finished(state):
-                    t0 = time.perf_counter()
-                    new_state, metrics, _ = self.loop.step(state)
-                    metrics["wall_seconds"] = wall + time.perf_counter() - t0
+            while not self._finished(state):
+                t0 = time.perf_counter()
+                new_state, metrics, _ = self.loop.step(state)
+                metrics["wall_seconds"] = wall + time.perf_counter() - t0
+                # Opened per row, not held for the leg: a metrics.csv replaced meanwhile (e.g.
+                # by a git checkout of a shipped run) gets the row instead of a deleted file.
+                with (self.run_dir / METRICS_FILE).open("a", newline="") as fh:
+                    writer = csv.DictWriter(fh, fieldnames=self.metric_columns, extrasaction="ignore")
                     writer.writerow(metrics)
-                    fh.flush()
-                    # Only now does the new state count: a Ctrl-C before this line leaves a
-                    # metrics row past the checkpoint, which resume drops and recomputes.
-                    done = int(new_state.evaluations) - int(state.evaluations) if by_evals else 1
-                    state, wall = new_state, metrics["wall_seconds"]
-                    bar.update(done)
-                    bar.set_postfix(qd=f"{metrics['qd_score']:.4g}", cov=f"{metrics['coverage']:.3f}")
-                    it = metrics["iteration"]
-                    if it % every == 0 or self._finished(state):
-                        self.save_checkpoint(state, wall)
-                        last_saved = it
-                        log.info(
-                            "iter %d/%s evals %d qd_score %.4g coverage %.4f best %.4g (%.3f s/iter)",
-                            it,
-                            "?" if by_evals else self.n_iterations,
-                            metrics["evaluations"],
-                            metrics["qd_score"],
-                            metrics["coverage"],
-                            metrics["best_objective"],
-                            metrics["step_seconds"],
-                        )
+                # Only now does the new state count: a Ctrl-C before this line leaves a
+                # metrics row past the checkpoint, which resume drops and recomputes.
+                done = int(new_state.evaluations) - int(state.evaluations) if by_evals else 1
+                state, wall = new_state, metrics["wall_seconds"]
+                bar.update(done)
+                bar.set_postfix(qd=f"{metrics['qd_score']:.4g}", cov=f"{metrics['coverage']:.3f}")
+                it = metrics["iteration"]
+                if it % every == 0 or self._finished(state):
+                    self.save_checkpoint(state, wall)
+                    last_saved = it
+                    log.info(
+                        "iter %d/%s evals %d qd_score %.4g coverage %.4f best %.4g (%.3f s/iter)",
+                        it,
+                        "?" if by_evals else self.n_iterations,
+                        metrics["evaluations"],
+                        metrics["qd_score"],
+                        metrics["coverage"],
+                        metrics["best_objective"],
+                        metrics["step_seconds"],
+                    )
         except KeyboardInterrupt:
             if int(state.iteration) != last_saved:
                 self.save_checkpoint(state, wall)
