@@ -105,7 +105,8 @@ PRIORITY = "random"  # "random": fresh random agent order each step; "age": PIBT
 # / CROWD_REF_BLOCKS (those of a 33x36 map, where the thresholds were calibrated): the maximum
 # over 9x as many blocks is higher at the same density (101x102: the manufacturing generator
 # RHCR runs at 22.2 showed 19.6-19.8 against its threshold of 18), while a map's r most crowded
-# blocks hold what its most crowded 33x36 part would (docs/benchmarks.md, "at 101x102").
+# blocks hold what its most crowded 33x36 part would (docs/benchmarks.md, "Crowding that
+# scales with the map").
 DENSITY_K = 5
 CROWD_REF_BLOCKS = (33 - DENSITY_K + 1) * (36 - DENSITY_K + 1)
 CROWD_MEAN = 17.0
