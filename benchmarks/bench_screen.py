@@ -78,6 +78,15 @@ other half, beside the domain's configured threshold and the default (17): major
 Spearman of mean throughput, and the error of both estimates: scaled (1.3 x the screen's
 throughput) and free flow (its efficiency fitted on the calibration half's flowing layouts,
 the default congested share), so a domain's ``eval.screen_estimate`` is chosen on the same data.
+
+Issue 20's fidelity set as it reads (``BENCH_SCREEN_PARTS=fidelity_mixed``, not in the default
+set: about an hour of RHCR on 2 cores unless ``BENCH_SCREEN_RHCR_CACHE`` holds it): the 41
+held-out synthetic layouts above plus ``BENCH_SCREEN_MIXED_N`` (default 14) layouts from each
+of the three searches' memos (warehouse even and uneven, manufacturing; ``MIXED_SOURCES``:
+only iterations no screen calibration used), each screened the way its domain's configuration
+screens (crowding threshold, estimate) and run with exact RHCR seeds 0-9 at the search's node
+budget (set ``BENCH_SCREEN_PBS_MAX_NODES=2000``). Prints, pooled and per group: RHCR's split
+half (Spearman, majority agreement) beside the screen's against RHCR seeds 0-4.
 """
 
 from __future__ import annotations
@@ -213,7 +222,7 @@ def make_layouts(n_min: int = 40, seed: int = 1) -> list[tuple[str, list[str]]]:
     return out
 
 
-def rhcr_figures(layouts, cache: str | None, seeds: list[int] = SEEDS) -> dict:
+def rhcr_figures(layouts, cache: str | None, seeds: list[int] = SEEDS, scenario: str = SCENARIO) -> dict:
     """name -> list of (throughput, success, CPU-s) over ``seeds``, exact RHCR, threads=1
     (cached under the layout's name for SEEDS, ``name@<first seed>`` for other seeds)."""
     from nca_qd.sim.rhcr import simulate_many
@@ -223,7 +232,7 @@ def rhcr_figures(layouts, cache: str | None, seeds: list[int] = SEEDS) -> dict:
     for name, rows in layouts:
         if name + tag in done:
             continue
-        runs = simulate_many(rows, SCENARIO, AGENTS, T, list(seeds), threads=1, pbs_max_nodes=PBS_MAX_NODES)
+        runs = simulate_many(rows, scenario, AGENTS, T, list(seeds), threads=1, pbs_max_nodes=PBS_MAX_NODES)
         done[name + tag] = [[r.throughput, r.success, r.cpu_seconds] for r in runs]
         if cache:
             Path(cache).write_text(json.dumps(done))
@@ -347,6 +356,118 @@ def fidelity() -> None:
                 }
             )
         )
+
+
+# The mixed fidelity set's search layouts: (domain, its search's memo, the first and last
+# iteration drawn from). The first is the first whose layouts no calibration of the screen saw:
+# uneven traffic's threshold came from iterations 1-28, manufacturing's from 1-7; the warehouse
+# (even) threshold and congested share came from the synthetic seed-0 set. The last is where
+# the running searches stood when the figures in docs/benchmarks.md were measured, so that the
+# memos' later iterations do not change the draw.
+MIXED_SOURCES = (
+    ("warehouse_even", "results/warehouse_even_a5/eval_memo.npz", 1, 200),
+    ("warehouse_uneven", "results/warehouse_uneven_a5/eval_memo.npz", 29, 95),
+    ("manufacturing", "results/manufacturing_a5/eval_memo.npz", 8, 24),
+)
+
+
+def _memo_sample(path: Path, iterations: tuple[int, int], n: int, seed: int) -> list[tuple[str, list[str]]]:
+    """``n`` distinct exactly-run repaired layouts of a search's memo from the ``iterations``
+    (first, last), drawn at random: (name, rows), the name carrying the memo's domain and the
+    layout's key."""
+    from nca_qd.io import array_to_rows
+    from nca_qd.layouts import get_layout
+    from nca_qd.scoring.memo import layout_key
+
+    memo = np.load(path)
+    scenario = json.loads(str(memo["fingerprint"]))["domain"]
+    by_key = {layout_key(lay): i for i, lay in enumerate(memo["repair_layouts"])}
+    keys = sorted(
+        {
+            bytes(k)
+            for k, it in zip(memo["exact_keys"], memo["exact_iteration"])
+            if iterations[0] <= it <= iterations[1]
+        }
+        & set(by_key)
+    )
+    pick = np.random.default_rng(seed).choice(len(keys), min(n, len(keys)), replace=False)
+    tiles = get_layout(scenario, "domain").tiles
+    return [
+        (f"{scenario}:{keys[i].hex()[:16]}", array_to_rows(memo["repair_layouts"][by_key[keys[i]]], tiles))
+        for i in sorted(pick)
+    ]
+
+
+def fidelity_mixed() -> None:
+    """Issue 20's fidelity set as it reads: the held-out synthetic warehouse layouts (seed 1)
+    plus layouts of the three searches (warehouse even and uneven, manufacturing) that no
+    calibration saw; each screened as its domain's configuration screens it (threshold,
+    estimate), against exact RHCR at the search's node budget, with RHCR's split half beside."""
+    from experiments.cli import compose_config
+    from nca_qd.domains import make_domain
+    from nca_qd.scoring.mapf import MapfScorer
+
+    cache = os.environ.get("BENCH_SCREEN_RHCR_CACHE")
+    n = int(os.environ.get("BENCH_SCREEN_MIXED_N", 14))
+    groups = [("synthetic", "warehouse_even", make_layouts())]
+    for scenario, memo, first, last in MIXED_SOURCES:
+        if Path(memo).is_file():
+            groups.append(
+                (f"{scenario}_search", scenario, _memo_sample(Path(memo), (first, last), n, seed=3))
+            )
+        else:
+            print(f"fidelity_mixed: no memo at {memo}; its group is left out")
+    other = [s + len(SEEDS) for s in SEEDS]
+    rows_out: dict[str, list[np.ndarray]] = {}
+    t0 = time.perf_counter()
+    for group, scenario, layouts in groups:
+        names = [name for name, _ in layouts]
+        first = rhcr_figures(layouts, cache, SEEDS, scenario)
+        second = rhcr_figures(layouts, cache, other, scenario)
+        cfg = compose_config("run", [f"domain={scenario}", "eval.workers=0"])
+        scorer = MapfScorer(make_domain(cfg.domain), cfg)
+        thr, ok, stop, flow = scorer.screen_runs([rows for _, rows in layouts], SEEDS)
+        if scorer.cfg.screen_estimate == "free_flow":
+            est = rhcr_estimate(thr, ok, stop, flow, scorer.efficiency, scorer.cfg.screen_congested)
+        else:
+            est = thr.mean(1) * scorer.cfg.screen_scale
+        columns = [
+            [np.mean([r[0] for r in first[m]]) for m in names],  # RHCR mean, seeds 0-4
+            [np.mean([r[0] for r in second[m]]) for m in names],  # seeds 5-9
+            [np.mean([r[1] for r in first[m]]) > 0.5 for m in names],
+            [np.mean([r[1] for r in second[m]]) > 0.5 for m in names],
+            est,
+            thr.mean(1),
+            ok.mean(1) > 0.5,
+        ]
+        for key, col in zip(("a", "b", "ok_a", "ok_b", "est", "raw", "ok_s"), columns):
+            rows_out.setdefault(key, []).append(np.asarray(col))
+        rows_out.setdefault("group", []).append(np.array([group] * len(names)))
+        rows_out.setdefault("estimate", []).append(np.array([scorer.cfg.screen_estimate] * len(names)))
+    print(f"fidelity_mixed: {time.perf_counter() - t0:.0f} s wall (RHCR cached or run, screen)")
+    col = {k: np.concatenate(v) for k, v in rows_out.items()}
+
+    def figures(sel: np.ndarray) -> dict:
+        a, b, est = col["a"][sel], col["b"][sel], col["est"][sel]
+        return {
+            "layouts": int(sel.sum()),
+            "rhcr_split_half_spearman": round(_spearman(a, b), 3),
+            "rhcr_split_half_majority": round(float(np.mean(col["ok_a"][sel] == col["ok_b"][sel])), 3),
+            "screen_spearman": round(_spearman(a, est), 3),
+            "screen_spearman_raw": round(_spearman(a, col["raw"][sel]), 3),
+            "screen_majority": round(float(np.mean(col["ok_a"][sel] == col["ok_s"][sel])), 3),
+            "rhcr_flow_share": round(float(np.mean(col["ok_a"][sel])), 3),
+        }
+
+    print(
+        f"== fidelity_mixed: {len(col['a'])} held-out 33x36 layouts, {AGENTS} agents, T={T}, "
+        f"RHCR seeds {SEEDS[0]}-{SEEDS[-1]} (screen, split half against {other[0]}-{other[-1]}), "
+        f"pbs_max_nodes={PBS_MAX_NODES}"
+    )
+    print(json.dumps({"all": figures(np.ones(len(col["a"]), bool))}))
+    for group in dict.fromkeys(col["group"]):
+        sel = col["group"] == group
+        print(json.dumps({str(group): {**figures(sel), "estimate": str(col["estimate"][sel][0])}}))
 
 
 def _elite_before(memo, config_path: Path, layouts: np.ndarray) -> np.ndarray:
@@ -819,6 +940,8 @@ def main() -> None:
         fit_congested()
     if "crowd_threshold" in parts:
         crowd_threshold()
+    if "fidelity_mixed" in parts:
+        fidelity_mixed()
 
 
 if __name__ == "__main__":
