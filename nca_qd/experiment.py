@@ -12,9 +12,10 @@ A run directory holds
   ``qd.checkpoint_every`` iterations, at the end and on Ctrl-C (``checkpoint.exact`` chooses
   a bit-exact or a compact emitter state); a ``checkpoint.msgpack`` of earlier versions
   (dense) still resumes, and is replaced by the first new checkpoint;
-* ``snapshot.npz`` (with ``snapshot.enabled=true``): a portable copy of each checkpoint, small
-  enough to commit (only the best ``snapshot.exact_elites`` result elites keep float32
-  parameters); a run whose ``checkpoint.npz`` is missing (a fresh clone) resumes from it;
+* ``snapshot.npz`` (``snapshot.enabled``; ``auto``, the default: for run directories under a
+  ``results/`` folder): a portable copy of each checkpoint, small enough to commit (only the
+  best ``snapshot.exact_elites`` result elites keep float32 parameters); a run whose
+  ``checkpoint.npz`` is missing (a fresh clone) resumes from it;
 * ``eval_memo.npz`` (warehouse, manufacturing): the repairs and exact runs already made,
   written just before each checkpoint (:mod:`nca_qd.scoring.memo`);
 * ``archive_result.npz`` / ``archive_opt.npz``: both archives as their elites
@@ -179,8 +180,11 @@ class Experiment:
             OmegaConf.to_container(cfg.checkpoint) if cfg.get("checkpoint") is not None else None
         )
         snap = cfg.get("snapshot") or {}
-        if not isinstance(snap.get("enabled", False), bool):
-            raise NcaQdError(f"snapshot.enabled must be true or false, got {snap.get('enabled')!r}")
+        enabled = snap.get("enabled", "auto")
+        if enabled == "auto":  # a run kept under results/ is one meant for git: it needs its snapshot
+            enabled = "results" in Path(run_dir).resolve().parts
+        if not isinstance(enabled, bool):
+            raise NcaQdError(f"snapshot.enabled must be true, false or auto, got {snap.get('enabled')!r}")
         base = self.checkpoint_policy
         snapshot_policy = checkpoint.CheckpointPolicy(  # validated even while disabled
             exact=False,
@@ -189,7 +193,7 @@ class Experiment:
             covariance_tolerance=base.covariance_tolerance,
             exact_elites=snap.get("exact_elites", 64),
         )
-        self.snapshot_policy = snapshot_policy if snap.get("enabled", False) else None
+        self.snapshot_policy = snapshot_policy if enabled else None
         # What the checkpoint's results depend on beyond the config (the exact simulator), and
         # the simulators that scored earlier iterations of a run resumed across a change.
         self.simulator = getattr(self.objective.evaluator, "simulator_version", None)

@@ -150,6 +150,7 @@ def _cli_here(args, capsys, monkeypatch):
         (["checkpoint.exact=maybe"], "checkpoint exact must be true or false"),
         (["allow_simulator_change=maybe"], "allow_simulator_change must be true or false"),
         (["snapshot.exact_elites=-1"], "checkpoint exact_elites must be a non-negative integer"),
+        (["snapshot.enabled=sometimes"], "snapshot.enabled must be true, false or auto"),
     ],
 )
 def test_bad_input_gets_one_line_and_exit_2(args, message, capsys, monkeypatch):
@@ -285,3 +286,19 @@ def test_render_redraws_a_runs_pictures_from_its_checkpoint_alone(full_run, tmp_
     ]
     for name in ("archive_result.png", "archive_opt.png", "best_train.png", "best_eval.png"):
         assert (out / name).read_bytes() == (run_dir / name).read_bytes(), name
+
+
+@pytest.mark.parametrize(
+    "where, enabled, expected",
+    [
+        ("results/leg", "auto", True),
+        ("runs/leg", "auto", False),
+        ("results/leg", "false", False),
+        ("runs/leg", "true", True),
+    ],
+)
+def test_a_run_kept_under_results_writes_its_portable_snapshot_by_default(tmp_path, where, enabled, expected):
+    """snapshot.enabled=auto (the default): a run directory under results/ (meant for git) gets
+    the portable snapshot a fresh clone resumes from; elsewhere only when asked."""
+    exp = Experiment(_cfg(f"snapshot.enabled={enabled}"), tmp_path / where)
+    assert (exp.snapshot_policy is not None) == expected
