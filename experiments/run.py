@@ -16,6 +16,8 @@ from experiments.cli import RESUME_HINT, compose_config, main_guard, merge_overr
 from nca_qd.errors import NcaQdError
 
 RUN_DIR_KEYS = ("hydra.run.dir=", "run_dir=")
+# sysexits' EX_TEMPFAIL: the leg (leg_seconds) ended before the search; run resume= again.
+EXIT_LEG_ENDED = 75
 
 
 def _split_run_dir(argv: list[str]) -> tuple[str | None, list[str]]:
@@ -56,6 +58,9 @@ def main(argv: list[str]) -> int:
     exp = Experiment(cfg, run_path)
     exp.run(resume=bool(resume))
     print(f"run directory: {run_path}")
+    if exp.leg_ended:  # leg_seconds ended it: the same resume command goes on
+        print(f"leg ended before the search's end; go on with: python -m experiments.run resume={run_path}")
+        return EXIT_LEG_ENDED
     return 0
 
 

@@ -78,6 +78,10 @@ METRIC_COLUMNS = [
     "step_seconds",
     "wall_seconds",
 ]
+# Config keys that belong to one invocation, not to the run: never saved in config.yaml.
+INVOCATION_KEYS = ("allow_simulator_change", "leg_seconds")
+# leg_seconds judges the next iteration by the longest of the last this many.
+RECENT_ITERATIONS = 10
 __all__ = [
     "METRIC_COLUMNS",
     "Experiment",
@@ -92,6 +96,24 @@ __all__ = [
     "load_run_config",
     "select_elites",
 ]
+
+
+def _leg_seconds(value: object) -> float | None:
+    """``leg_seconds`` as a positive number of seconds, or None (run to the end)."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < math.inf:
+        raise NcaQdError(f"leg_seconds must be a positive number of seconds or null, got {value!r}")
+    return float(value)
+
+
+def _seconds(text: str | None) -> float | None:
+    """A metrics.csv cell as finite seconds, or None (empty, nan, unreadable)."""
+    try:
+        value = float(text)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return None
+    return value if math.isfinite(value) else None
 
 
 def validate_config(cfg: DictConfig) -> None:
@@ -202,6 +224,8 @@ class Experiment:
         if not isinstance(allow, bool):
             raise NcaQdError(f"allow_simulator_change must be true or false, got {allow!r}")
         self.allow_simulator_change = allow
+        self.leg_seconds = _leg_seconds(cfg.get("leg_seconds"))
+        self.leg_ended = False  # set by run() when leg_seconds ended it before the search's end
 
     # --- state on disk -------------------------------------------------------------------
     def initial_state(self) -> QDState:
@@ -291,9 +315,10 @@ class Experiment:
     def run(self, resume: bool = False) -> QDState:
         """Run (or continue) until ``qd.n_evals`` evaluations; returns the final state."""
         self.run_dir.mkdir(parents=True, exist_ok=True)
-        # allow_simulator_change is one resume's decision: the saved config never carries it, so
-        # a later resume under yet another simulator is refused again.
-        saved = OmegaConf.masked_copy(self.cfg, [k for k in self.cfg if k != "allow_simulator_change"])
+        # allow_simulator_change and leg_seconds are one invocation's decisions: the saved config
+        # never carries them, so a later resume under yet another simulator is refused again and
+        # a resume without leg_seconds runs to the end.
+        saved = OmegaConf.masked_copy(self.cfg, [k for k in self.cfg if k not in INVOCATION_KEYS])
         atomic_write_text(self.run_dir / CONFIG_FILE, OmegaConf.to_yaml(saved))
         if resume:
             state, wall = self.load_checkpoint()
@@ -306,17 +331,32 @@ class Experiment:
             writer = csv.DictWriter(fh, fieldnames=self.metric_columns, extrasaction="ignore")
             writer.writeheader()
             writer.writerows(rows)
+        recent = [_seconds(r.get("step_seconds")) for r in rows[-RECENT_ITERATIONS:]]
         try:
-            state = self._iterate(state, wall)
-            self.write_outputs(state)
+            state = self._iterate(state, wall, [x for x in recent if x is not None])
+            if self.leg_ended:
+                log.info(
+                    "leg of %s s ended at iteration %d (%d evaluations), before the search's end; "
+                    "continue with resume=%s",
+                    f"{self.leg_seconds:g}",
+                    int(state.iteration),
+                    int(state.evaluations),
+                    self.run_dir,
+                )
+            else:
+                self.write_outputs(state)
         finally:
             self.objective.close()
         return state
 
-    def _iterate(self, state: QDState, wall: float) -> QDState:
+    def _iterate(self, state: QDState, wall: float, recent: list[float]) -> QDState:
+        """Step until the search's end (or, with ``leg_seconds``, until the next iteration
+        would not end in time: ``recent`` holds the last iterations' seconds, the estimate of
+        the next one is the longest of them); checkpoint as configured and on the way out."""
         from tqdm import tqdm
 
         cfg = self.cfg
+        leg_start = time.monotonic()
         start_iter = int(state.iteration)
         by_evals = self.n_iterations is None
         bar = tqdm(
@@ -331,6 +371,12 @@ class Experiment:
         last_saved = start_iter
         try:
             while not self._finished(state):
+                if self._leg_over(leg_start, recent):
+                    if int(state.iteration) != last_saved:
+                        self.save_checkpoint(state, wall)
+                        last_saved = int(state.iteration)
+                    self.leg_ended = True
+                    break
                 t0 = time.perf_counter()
                 new_state, metrics, _ = self.loop.step(state)
                 metrics["wall_seconds"] = wall + time.perf_counter() - t0
@@ -342,6 +388,7 @@ class Experiment:
                 # Only now does the new state count: a Ctrl-C before this line leaves a
                 # metrics row past the checkpoint, which resume drops and recomputes.
                 done = int(new_state.evaluations) - int(state.evaluations) if by_evals else 1
+                recent = (recent + [float(metrics["step_seconds"])])[-RECENT_ITERATIONS:]
                 state, wall = new_state, metrics["wall_seconds"]
                 bar.update(done)
                 bar.set_postfix(qd=f"{metrics['qd_score']:.4g}", cov=f"{metrics['coverage']:.3f}")
@@ -366,6 +413,13 @@ class Experiment:
             raise
         bar.close()
         return state
+
+    def _leg_over(self, leg_start: float, recent: list[float]) -> bool:
+        """Would the next iteration end past ``leg_seconds`` (counted from the loop's start)?
+        Without any iteration to judge by, one is run."""
+        if self.leg_seconds is None or not recent:
+            return False
+        return time.monotonic() - leg_start + max(recent) > self.leg_seconds
 
     def _finished(self, state: QDState) -> bool:
         if self.n_iterations is None:

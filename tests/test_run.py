@@ -151,6 +151,8 @@ def _cli_here(args, capsys, monkeypatch):
         (["allow_simulator_change=maybe"], "allow_simulator_change must be true or false"),
         (["snapshot.exact_elites=-1"], "checkpoint exact_elites must be a non-negative integer"),
         (["snapshot.enabled=sometimes"], "snapshot.enabled must be true, false or auto"),
+        (["leg_seconds=0"], "leg_seconds must be a positive number of seconds or null"),
+        (["leg_seconds=soon"], "leg_seconds must be a positive number of seconds or null"),
     ],
 )
 def test_bad_input_gets_one_line_and_exit_2(args, message, capsys, monkeypatch):
@@ -208,6 +210,27 @@ def test_ctrl_c_leaves_a_resumable_checkpoint(tmp_path):
     assert main([f"resume={run_dir}", "qd.n_evals=" + str(8 * (done + 2)), "output.pictures=false"]) == 0
     rows = _metrics(run_dir)
     assert [int(r["iteration"]) for r in rows] == list(range(1, done + 3))
+
+
+def test_a_leg_ends_before_an_iteration_it_cannot_finish_and_resume_goes_on(tmp_path):
+    """leg_seconds: without an iteration to judge by, a leg runs one; once it knows an
+    iteration's length it checkpoints and exits 75 before one that would end too late, losing
+    nothing; the setting is not saved, so a plain resume runs to the end."""
+    from experiments.run import EXIT_LEG_ENDED, main
+
+    run_dir = tmp_path / "legs"
+    quick = ["output.pictures=false", "qd.checkpoint_every=10"]
+    assert main(TINY + quick + [f"run_dir={run_dir}", "leg_seconds=0.001"]) == EXIT_LEG_ENDED
+    assert [int(r["iteration"]) for r in _metrics(run_dir)] == [1]  # one, then no room for another
+    assert (run_dir / "checkpoint.npz").is_file()  # saved although checkpoint_every is 10
+    assert not (run_dir / "archive_result.npz").exists()  # a leg's end is not the search's
+    assert "leg_seconds" not in (run_dir / "config.yaml").read_text()
+    # Judged by the recorded iteration, the next leg starts none at all.
+    assert main([f"resume={run_dir}", "leg_seconds=0.001"]) == EXIT_LEG_ENDED
+    assert [int(r["iteration"]) for r in _metrics(run_dir)] == [1]
+    assert main([f"resume={run_dir}", "leg_seconds=3600"]) == 0
+    assert [int(r["iteration"]) for r in _metrics(run_dir)] == list(range(1, 6))
+    assert (run_dir / "archive_result.npz").is_file()
 
 
 def test_sigterm_stops_like_ctrl_c(capsys):
