@@ -298,7 +298,8 @@ class Experiment:
             tree = load_pytree(legacy, {"state": self.initial_state(), "wall_seconds": np.float64(0)})
             state, wall = tree["state"], float(tree["wall_seconds"])
         else:
-            raise NcaQdError(f"{self.run_dir}: no checkpoint to resume from ({CHECKPOINT_FILE} missing)")
+            missing = f"neither {CHECKPOINT_FILE} nor {SNAPSHOT_FILE}"
+            raise NcaQdError(f"{self.run_dir}: no checkpoint to resume from ({missing})")
         self.objective.restore_state(self.run_dir, int(state.iteration))
         if hasattr(self.loop, "restore_state"):
             self.loop.restore_state(self.run_dir, state)
@@ -319,12 +320,12 @@ class Experiment:
         # never carries them, so a later resume under yet another simulator is refused again and
         # a resume without leg_seconds runs to the end.
         saved = OmegaConf.masked_copy(self.cfg, [k for k in self.cfg if k not in INVOCATION_KEYS])
-        atomic_write_text(self.run_dir / CONFIG_FILE, OmegaConf.to_yaml(saved))
-        if resume:
+        if resume:  # first: a run directory that cannot be resumed is left as it was
             state, wall = self.load_checkpoint()
             log.info("resuming %s at iteration %d", self.run_dir, int(state.iteration))
         else:
             state, wall = self.initial_state(), 0.0
+        atomic_write_text(self.run_dir / CONFIG_FILE, OmegaConf.to_yaml(saved))
         rows = self._metrics_rows(int(state.iteration))
         metrics_path = self.run_dir / METRICS_FILE
         with metrics_path.open("w", newline="") as fh:  # rewrite: drops rows past the checkpoint

@@ -233,6 +233,29 @@ def test_a_leg_ends_before_an_iteration_it_cannot_finish_and_resume_goes_on(tmp_
     assert (run_dir / "archive_result.npz").is_file()
 
 
+@pytest.mark.parametrize("snapshot", [None, b"PK\x03\x04 cut short"], ids=["missing", "truncated"])
+def test_a_run_directory_without_a_usable_snapshot_is_one_line_and_nothing_changes(
+    full_run, tmp_path, snapshot, capsys, monkeypatch
+):
+    """What a fresh clone of results/<run>/ may hold when a leg's snapshot was never committed
+    or arrived cut short: resume says so in one line, exits 2, and rewrites none of the files."""
+    import shutil
+
+    run_dir = tmp_path / "results" / "run"
+    run_dir.mkdir(parents=True)
+    for name in ("config.yaml", "metrics.csv"):
+        shutil.copy(full_run[0] / name, run_dir / name)
+    if snapshot is not None:
+        (run_dir / "snapshot.npz").write_bytes(snapshot)
+    before = {f.name: f.read_bytes() for f in run_dir.iterdir()}
+    code, err = _cli_here([f"resume={run_dir}"], capsys, monkeypatch)
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and lines[0].startswith("error: "), err
+    expected = "neither checkpoint.npz nor snapshot.npz" if snapshot is None else "not a readable checkpoint"
+    assert expected in lines[0]
+    assert {f.name: f.read_bytes() for f in run_dir.iterdir()} == before
+
+
 def test_sigterm_stops_like_ctrl_c(capsys):
     """SIGTERM (a scheduler's or a session's end) becomes the KeyboardInterrupt that makes a run
     write its checkpoint (the test above) and exit 130 with the resume hint."""
