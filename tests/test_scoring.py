@@ -135,7 +135,7 @@ def _process_runs(pid: int) -> bool:
     rather than from multiprocessing's bookkeeping."""
     try:
         stat = Path(f"/proc/{pid}/stat").read_text()
-    except FileNotFoundError:
+    except (FileNotFoundError, ProcessLookupError):  # gone before, or while, /proc was read (ESRCH)
         return False
     return stat.rsplit(")", 1)[1].split()[0] not in ("Z", "X")
 
