@@ -17,6 +17,7 @@ whole search (``qd.n_evals`` of them, whatever the number of outer iterations).
 
     python -m benchmarks.bench_dsage [--domain maze,warehouse_even] [--features 64] [--reduced-features 32]
     python -m benchmarks.bench_dsage --domain warehouse_even --layouts 4
+    python -m benchmarks.bench_dsage --domain warehouse_even --real-seconds-per-layout 15.4  # GPU box
 """
 
 from __future__ import annotations
@@ -114,32 +115,46 @@ def outer_iteration(
     return train, search, real
 
 
-def report(domain: str, layouts: int | None, features: int, reduced_features: int) -> None:
-    """Print one domain's figures (see the module docstring)."""
+def report(
+    domain: str,
+    layouts: int | None,
+    features: int,
+    reduced_features: int,
+    real_seconds: float | None = None,
+) -> None:
+    """Print one domain's figures (see the module docstring); ``real_seconds`` replaces the
+    measured real evaluation per layout (e.g. the CPU pool's figure on a GPU machine)."""
     cfg, dom = _settings(domain)
-    n_layouts = layouts or (256 if domain == "maze" else 4)
-    per_layout, what = real_evaluation(domain, n_layouts)
+    if real_seconds is None:
+        n_layouts = layouts or (256 if domain == "maze" else 4)
+        per_layout, what = real_evaluation(domain, n_layouts)
+    else:
+        per_layout, what = real_seconds, "given with --real-seconds-per-layout, not measured"
+    print(f"backend: {jax.default_backend()} ({jax.devices()[0].device_kind}), jax {jax.__version__}")
     coarse = [int(c) for c in (cfg.algo.downsample or cfg.domain.dsage.downsample)]
     n_real = math.prod(coarse)  # the most real evaluations one outer iteration can ask
     n_evals = int(cfg.qd.n_evals)
     shape = "x".join(map(str, dom.gen_shape("train")))
-    print(f"{domain} at S ({shape}): real evaluation {per_layout:.3f} s per layout ({what})")
+    print(f"{domain} at S ({shape}): real evaluation {per_layout * 1000:.2f} ms per layout ({what})")
     print(
-        f"real evaluations of a whole search: {n_evals} x {per_layout:.3f} s = "
+        f"real evaluations of a whole search: {n_evals} x {per_layout * 1000:.2f} ms = "
         f"{n_evals * per_layout / 3600:.1f} h, in >= {math.ceil(n_evals / n_real)} outer iterations "
         f"of <= {n_real}"
     )
+    n_outer = math.ceil(n_evals / n_real)
     for label, feats, epochs, sample, inner in (
         ("paper (algo/dsage.yaml)", features, 200, 20000, 10000),
         ("reduced", reduced_features, 20, 20000, 500),
     ):
         c = stage_costs(domain, feats)
         train, search, real = outer_iteration(c, per_layout, epochs, sample, inner, n_real)
+        outer = train + search + real
         print(
-            f"{label}: features {feats}: train step {c['train_step'] * 1000:.0f} ms, inner iteration "
+            f"{label}: features {feats}: train step {c['train_step'] * 1000:.1f} ms, inner iteration "
             f"{c['inner_iteration'] * 1000:.1f} ms; one outer iteration at full data (epochs {epochs}, "
             f"{sample} rows, {inner} inner iterations, {n_real} real): train {train / 60:.1f} min + inner "
-            f"{search / 60:.1f} min + real {real / 60:.1f} min = {(train + search + real) / 3600:.2f} h"
+            f"{search / 60:.1f} min + real {real / 60:.1f} min = {outer / 3600:.2f} h; a whole search: "
+            f"{n_outer} or more outer iterations, each at most this: ~{n_outer * outer / 3600:.1f} h"
         )
 
 
@@ -149,9 +164,20 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--layouts", type=int, default=None, help="layouts evaluated for real (maze 256, else 4)")
     ap.add_argument("--features", type=int, default=64)
     ap.add_argument("--reduced-features", type=int, default=32)
+    ap.add_argument(
+        "--real-seconds-per-layout",
+        type=float,
+        default=None,
+        help="use this real-evaluation cost per layout instead of measuring it (e.g. the CPU pool's "
+        "figure from docs/benchmarks.md, on a GPU machine without the RHCR core)",
+    )
     args = ap.parse_args(argv)
+    if args.real_seconds_per_layout is not None and args.real_seconds_per_layout < 0:
+        ap.error("--real-seconds-per-layout must be >= 0")
     for domain in args.domain.split(","):
-        report(domain.strip(), args.layouts, args.features, args.reduced_features)
+        report(
+            domain.strip(), args.layouts, args.features, args.reduced_features, args.real_seconds_per_layout
+        )
 
 
 if __name__ == "__main__":

@@ -6,7 +6,9 @@ A run directory holds
 
 * ``config.yaml``: the resolved configuration (a resumed run reuses it);
 * ``metrics.csv``: one row per iteration (result archive's ``qd_score``, ``coverage``,
-  ``best_objective``; the optimisation archive's as ``opt_*``; ``evaluations``, ``wall_seconds``);
+  ``best_objective``; the optimisation archive's as ``opt_*``; ``evaluations``; ``step_seconds``,
+  the iteration's step; ``wall_seconds``, the search's wall clock so far: steps, rows and
+  checkpoints, not the time between legs);
 * ``checkpoint.npz``: the QD state (archives as their elites, emitters, key, counters) in the
   sparse format of :mod:`nca_qd.qd.checkpoint`, written atomically every
   ``qd.checkpoint_every`` iterations, at the end and on Ctrl-C (``checkpoint.exact`` chooses
@@ -370,6 +372,10 @@ class Experiment:
         )
         every = int(cfg.algo.get("checkpoint_every", cfg.qd.checkpoint_every))
         last_saved = start_iter
+        # wall_seconds counts everything since the last row (the step, the row, the checkpoint
+        # and log that followed it): with fast steps (the maze on a GPU) checkpoints can take
+        # most of a search's time, and a search's cost must show them.
+        mark = time.perf_counter()
         try:
             while not self._finished(state):
                 if self._leg_over(leg_start, recent):
@@ -378,9 +384,10 @@ class Experiment:
                         last_saved = int(state.iteration)
                     self.leg_ended = True
                     break
-                t0 = time.perf_counter()
                 new_state, metrics, _ = self.loop.step(state)
-                metrics["wall_seconds"] = wall + time.perf_counter() - t0
+                now = time.perf_counter()
+                metrics["wall_seconds"] = wall + now - mark
+                mark = now
                 # Opened per row, not held for the leg: a metrics.csv replaced meanwhile (e.g.
                 # by a git checkout of a shipped run) gets the row instead of a deleted file.
                 with (self.run_dir / METRICS_FILE).open("a", newline="") as fh:

@@ -233,6 +233,28 @@ def test_a_leg_ends_before_an_iteration_it_cannot_finish_and_resume_goes_on(tmp_
     assert (run_dir / "archive_result.npz").is_file()
 
 
+def test_wall_seconds_counts_the_checkpoints_between_steps(tmp_path, monkeypatch):
+    """A search's wall clock is more than its steps: each checkpoint (here made 0.3 s slower)
+    shows in the next row's wall_seconds, so a run whose steps are fast (a GPU) reports its
+    real cost."""
+    slow = 0.3
+    save = Experiment.save_checkpoint
+
+    def slow_save(self, state, wall):
+        time.sleep(slow)
+        save(self, state, wall)
+
+    monkeypatch.setattr(Experiment, "save_checkpoint", slow_save)
+    run_dir = tmp_path / "wall"
+    Experiment(_cfg("qd.n_evals=24", "output.pictures=false", "qd.checkpoint_every=1"), run_dir).run()
+    rows = _metrics(run_dir)
+    wall = [float(r["wall_seconds"]) for r in rows]
+    step = [float(r["step_seconds"]) for r in rows]
+    assert len(rows) == 3 and wall[0] >= step[0]
+    for i in (1, 2):  # the checkpoint after row i-1 belongs to row i
+        assert wall[i] - wall[i - 1] >= step[i] + slow
+
+
 @pytest.mark.parametrize("snapshot", [None, b"PK\x03\x04 cut short"], ids=["missing", "truncated"])
 def test_a_run_directory_without_a_usable_snapshot_is_one_line_and_nothing_changes(
     full_run, tmp_path, snapshot, capsys, monkeypatch
