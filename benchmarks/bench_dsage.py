@@ -134,14 +134,13 @@ def report(
     coarse = [int(c) for c in (cfg.algo.downsample or cfg.domain.dsage.downsample)]
     n_real = math.prod(coarse)  # the most real evaluations one outer iteration can ask
     n_evals = int(cfg.qd.n_evals)
+    n_outer = math.ceil(n_evals / n_real)
     shape = "x".join(map(str, dom.gen_shape("train")))
     print(f"{domain} at S ({shape}): real evaluation {per_layout * 1000:.2f} ms per layout ({what})")
     print(
         f"real evaluations of a whole search: {n_evals} x {per_layout * 1000:.2f} ms = "
-        f"{n_evals * per_layout / 3600:.1f} h, in >= {math.ceil(n_evals / n_real)} outer iterations "
-        f"of <= {n_real}"
+        f"{n_evals * per_layout / 3600:.1f} h, in >= {n_outer} outer iterations of <= {n_real}"
     )
-    n_outer = math.ceil(n_evals / n_real)
     for label, feats, epochs, sample, inner in (
         ("paper (algo/dsage.yaml)", features, 200, 20000, 10000),
         ("reduced", reduced_features, 20, 20000, 500),
