@@ -82,7 +82,8 @@ METRIC_COLUMNS = [
 ]
 # Config keys that belong to one invocation, not to the run: never saved in config.yaml.
 INVOCATION_KEYS = ("allow_simulator_change", "leg_seconds")
-# leg_seconds judges the next iteration by the longest of the last this many.
+# leg_seconds judges the next iteration by the longest of the last this many (of this leg's
+# own once it has run one: a leg resumed on another machine must not be judged by the last one's).
 RECENT_ITERATIONS = 10
 __all__ = [
     "METRIC_COLUMNS",
@@ -354,8 +355,9 @@ class Experiment:
 
     def _iterate(self, state: QDState, wall: float, recent: list[float]) -> QDState:
         """Step until the search's end (or, with ``leg_seconds``, until the next iteration
-        would not end in time: ``recent`` holds the last iterations' seconds, the estimate of
-        the next one is the longest of them); checkpoint as configured and on the way out."""
+        would not end in time: the estimate of the next one is the longest of this leg's last
+        iterations, or before the first of them of ``recent``, the run's last recorded ones);
+        checkpoint as configured and on the way out."""
         from tqdm import tqdm
 
         cfg = self.cfg
@@ -376,9 +378,10 @@ class Experiment:
         # and log that followed it): with fast steps (the maze on a GPU) checkpoints can take
         # most of a search's time, and a search's cost must show them.
         mark = time.perf_counter()
+        own: list[float] = []  # this leg's iterations (another machine may have recorded recent)
         try:
             while not self._finished(state):
-                if self._leg_over(leg_start, recent):
+                if self._leg_over(leg_start, own or recent):
                     if int(state.iteration) != last_saved:
                         self.save_checkpoint(state, wall)
                         last_saved = int(state.iteration)
@@ -396,7 +399,7 @@ class Experiment:
                 # Only now does the new state count: a Ctrl-C before this line leaves a
                 # metrics row past the checkpoint, which resume drops and recomputes.
                 done = int(new_state.evaluations) - int(state.evaluations) if by_evals else 1
-                recent = (recent + [float(metrics["step_seconds"])])[-RECENT_ITERATIONS:]
+                own = (own + [float(metrics["step_seconds"])])[-RECENT_ITERATIONS:]
                 state, wall = new_state, metrics["wall_seconds"]
                 bar.update(done)
                 bar.set_postfix(qd=f"{metrics['qd_score']:.4g}", cov=f"{metrics['coverage']:.3f}")

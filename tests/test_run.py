@@ -233,6 +233,39 @@ def test_a_leg_ends_before_an_iteration_it_cannot_finish_and_resume_goes_on(tmp_
     assert (run_dir / "archive_result.npz").is_file()
 
 
+def test_a_leg_judges_its_iterations_by_its_own_once_it_has_run_one(tmp_path, monkeypatch):
+    """A run resumed on a faster machine (recorded iterations of 100 s, here ~0.1 s) runs on
+    to the end of its leg: once the leg has run an iteration, the recorded ones no longer
+    count. The leg's clock is faked: each look at it advances it by one second."""
+    import types
+
+    from experiments.run import EXIT_LEG_ENDED, main
+
+    run_dir = tmp_path / "moved"
+    quick = ["output.pictures=false", "qd.checkpoint_every=1"]
+    assert main(TINY + quick + [f"run_dir={run_dir}", "qd.n_evals=16"]) == 0
+    rows = _metrics(run_dir)
+    assert [int(r["iteration"]) for r in rows] == [1, 2]
+    for row in rows:  # as if recorded on a machine 1000 times slower
+        row["step_seconds"] = "100"
+    with open(run_dir / "metrics.csv", "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+
+    ticks = iter(range(10**6))
+    clock = types.SimpleNamespace(monotonic=lambda: float(next(ticks)), perf_counter=time.perf_counter)
+    monkeypatch.setattr("nca_qd.experiment.time", clock)
+    # 1 s in + 100 s recorded fits in 102 s: the leg runs one; judged by the recorded 100 s
+    # it would stop at the next look (3 + 100 > 102), judged by its own it goes on to the end.
+    assert main([f"resume={run_dir}", "qd.n_evals=48", "leg_seconds=102"]) == 0
+    assert [int(r["iteration"]) for r in _metrics(run_dir)] == list(range(1, 7))
+    # A leg that has not run one is still judged by the recorded iterations: it starts none.
+    ticks = iter(range(10**6))
+    assert main([f"resume={run_dir}", "qd.n_evals=64", "leg_seconds=50"]) == EXIT_LEG_ENDED
+    assert len(_metrics(run_dir)) == 6
+
+
 def test_wall_seconds_counts_the_checkpoints_between_steps(tmp_path, monkeypatch):
     """A search's wall clock is more than its steps: each checkpoint (here made 0.3 s slower)
     shows in the next row's wall_seconds, so a run whose steps are fast (a GPU) reports its
