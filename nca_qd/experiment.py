@@ -356,7 +356,7 @@ class Experiment:
     def _iterate(self, state: QDState, wall: float, recent: list[float]) -> QDState:
         """Step until the search's end (or, with ``leg_seconds``, until the next iteration
         would not end in time: the estimate of the next one is the longest of this leg's last
-        iterations, or before the first of them of ``recent``, the run's last recorded ones);
+        iterations or, before it has run one, of ``recent``, the run's last recorded ones);
         checkpoint as configured and on the way out."""
         from tqdm import tqdm
 
