@@ -10,8 +10,9 @@ A run directory holds
   the iteration's step; ``wall_seconds``, the search's wall clock so far: steps, rows and
   checkpoints, not the time between legs);
 * ``checkpoint.npz``: the QD state (archives as their elites, emitters, key, counters) in the
-  sparse format of :mod:`nca_qd.qd.checkpoint`, written atomically every
-  ``qd.checkpoint_every`` iterations, at the end and on Ctrl-C (``checkpoint.exact`` chooses
+  sparse format of :mod:`nca_qd.qd.checkpoint`, written atomically after the first iteration
+  that ends ``qd.checkpoint_seconds`` after the last one and every ``qd.checkpoint_every``
+  iterations (either may be null), at the end and on Ctrl-C (``checkpoint.exact`` chooses
   a bit-exact or a compact emitter state); a ``checkpoint.msgpack`` of earlier versions
   (dense) still resumes, and is replaced by the first new checkpoint;
 * ``snapshot.npz`` (``snapshot.enabled``; ``auto``, the default: for run directories under a
@@ -39,6 +40,7 @@ import csv
 import logging
 import math
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import jax
@@ -132,16 +134,21 @@ def validate_config(cfg: DictConfig) -> None:
         if isinstance(value, bool) or not isinstance(value, (int, float)) or value <= 0:
             raise NcaQdError(f"{path} must be a positive number, got {value!r}")
 
+    def optional(check: Callable[[str], None], path: str) -> None:
+        if OmegaConf.select(cfg, path) is not None:
+            check(path)
+
     for p in (
         "qd.n_evals",
         "qd.n_emitters",
         "qd.batch_size",
-        "qd.checkpoint_every",
         "domain.nca_iters.train",
         "domain.nca_iters.eval",
     ):
         positive_int(p)
     positive_float("qd.sigma0")
+    optional(positive_int, "qd.checkpoint_every")
+    optional(positive_float, "qd.checkpoint_seconds")
     if not isinstance(cfg.seed, int) or isinstance(cfg.seed, bool):
         raise NcaQdError(f"seed must be an integer, got {cfg.seed!r}")
     for which in ("train", "eval"):
@@ -372,8 +379,10 @@ class Experiment:
             unit="eval" if by_evals else "it",
             dynamic_ncols=True,
         )
-        every = int(cfg.algo.get("checkpoint_every", cfg.qd.checkpoint_every))
+        every = cfg.algo.get("checkpoint_every", cfg.qd.get("checkpoint_every"))
+        every_seconds = cfg.qd.get("checkpoint_seconds")  # absent from configs saved before it
         last_saved = start_iter
+        saved_at = time.perf_counter()
         # wall_seconds counts everything since the last row (the step, the row, the checkpoint
         # and log that followed it): with fast steps (the maze on a GPU) checkpoints can take
         # most of a search's time, and a search's cost must show them.
@@ -404,9 +413,12 @@ class Experiment:
                 bar.update(done)
                 bar.set_postfix(qd=f"{metrics['qd_score']:.4g}", cov=f"{metrics['coverage']:.3f}")
                 it = metrics["iteration"]
-                if it % every == 0 or self._finished(state):
+                due_by_count = every is not None and it % int(every) == 0
+                due_by_time = every_seconds is not None and now - saved_at >= float(every_seconds)
+                if due_by_count or due_by_time or self._finished(state):
                     self.save_checkpoint(state, wall)
                     last_saved = it
+                    saved_at = time.perf_counter()
                     log.info(
                         "iter %d/%s evals %d qd_score %.4g coverage %.4f best %.4g (%.3f s/iter)",
                         it,

@@ -152,6 +152,8 @@ def _cli_here(args, capsys, monkeypatch):
         (["snapshot.exact_elites=-1"], "checkpoint exact_elites must be a non-negative integer"),
         (["snapshot.enabled=sometimes"], "snapshot.enabled must be true, false or auto"),
         (["leg_seconds=0"], "leg_seconds must be a positive number of seconds or null"),
+        (["qd.checkpoint_seconds=0"], "qd.checkpoint_seconds must be a positive number"),
+        (["qd.checkpoint_every=0"], "qd.checkpoint_every must be a positive integer"),
         (["leg_seconds=soon"], "leg_seconds must be a positive number of seconds or null"),
     ],
 )
@@ -286,6 +288,49 @@ def test_wall_seconds_counts_the_checkpoints_between_steps(tmp_path, monkeypatch
     assert len(rows) == 3 and wall[0] >= step[0]
     for i in (1, 2):  # the checkpoint after row i-1 belongs to row i
         assert wall[i] - wall[i - 1] >= step[i] + slow
+
+
+@pytest.mark.parametrize(
+    "seconds,every,saved",
+    [(100, None, [3, 6]), (60, 5, [2, 4, 5, 6]), (None, None, [6])],
+    ids=["by-time", "by-time-and-count", "only-at-the-end"],
+)
+def test_checkpoints_follow_the_clock_and_the_count(tmp_path, monkeypatch, seconds, every, saved):
+    """qd.checkpoint_seconds: a checkpoint after the first iteration that ends that long after
+    the last one; qd.checkpoint_every adds one every so many iterations; the end always has one.
+    The clock is faked: each step takes 40 s of it."""
+    import types
+
+    from nca_qd.qd.loop import QDLoop
+
+    now = [0.0]
+    monkeypatch.setattr(
+        "nca_qd.experiment.time", types.SimpleNamespace(monotonic=time.monotonic, perf_counter=lambda: now[0])
+    )
+    step = QDLoop.step
+
+    def slow_step(self, state):
+        out = step(self, state)
+        now[0] += 40.0
+        return out
+
+    monkeypatch.setattr(QDLoop, "step", slow_step)
+    iterations = []
+    save = Experiment.save_checkpoint
+    monkeypatch.setattr(
+        Experiment,
+        "save_checkpoint",
+        lambda self, st, wall: (iterations.append(int(st.iteration)), save(self, st, wall)),
+    )
+    cfg = _cfg(
+        "qd.n_evals=48",
+        "output.pictures=false",
+        f"qd.checkpoint_seconds={'null' if seconds is None else seconds}",
+        f"qd.checkpoint_every={'null' if every is None else every}",
+    )
+    Experiment(cfg, tmp_path / "clock").run()
+    assert len(_metrics(tmp_path / "clock")) == 6
+    assert iterations == saved
 
 
 @pytest.mark.parametrize("snapshot", [None, b"PK\x03\x04 cut short"], ids=["missing", "truncated"])
