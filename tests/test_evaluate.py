@@ -357,9 +357,9 @@ def test_select_by_s_eval_picks_the_best_screened_generator(tmp_path, maps, monk
     repaired: list[str] = []
     real_repair_all = ev.repair_all
 
-    def counting_repair_all(backend, domain_name, items):
+    def counting_repair_all(backend, domain_name, items, **kw):
         repaired.extend(it.key for it, _ in items)
-        return real_repair_all(backend, domain_name, items)
+        return real_repair_all(backend, domain_name, items, **kw)
 
     monkeypatch.setattr(ev, "repair_all", counting_repair_all)
     run_dir = make_run(tmp_path / "run")
@@ -539,7 +539,8 @@ def test_too_many_agents_names_the_layout(tiny_run, tmp_path, maps, monkeypatch,
     assert code == 2 and not any("Traceback" in l for l in err)
     assert err[-1].startswith("error: ") and "500 agents but only" in err[-1]
     assert "(9x14)" in err[-1] and "lower the agent counts" in err[-1]
-    assert not (tmp_path / "o").exists()
+    # no output, only the repairs made before the check, which the corrected command reuses
+    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["repairs.jsonl"]
 
 
 def test_a_failed_repair_is_a_row_without_runs_and_old_outputs_go(tmp_path, maps):
@@ -655,6 +656,108 @@ def test_the_screen_run_record_keys_on_every_input_and_the_screen_version(tmp_pa
     got = ScreenRunStore(tmp_path).get(key, need_detail=False)
     assert got is not None and (got.simulator, got.throughput, got.stop_time) == ("screen", 0.5, 40)
     assert (tmp_path / "screen_runs.jsonl").is_file() and not (tmp_path / "exact_runs.jsonl").exists()
+
+
+def test_the_repair_record_keys_on_every_input_and_keeps_only_found_layouts(tmp_path):
+    from nca_qd.evaluation.store import RepairStore, repair_key
+    from nca_qd.layouts import warehouse as wh
+    from nca_qd.scoring.tasks import RepairOutcome
+
+    lay = load_map_rows(HUMAN_9x14)
+    opts = {"n_shelves": 12, "n_agents": 8, "method": "hybrid"}
+    key = repair_key("warehouse_even", lay, opts)
+    one_tile = lay.copy()
+    one_tile[0, 0] = wh.TILES.index("@")
+    changed = [
+        repair_key("warehouse_uneven", lay, opts),
+        repair_key("warehouse_even", one_tile, opts),
+        repair_key("warehouse_even", lay, {**opts, "n_shelves": 13}),
+        repair_key("warehouse_even", lay, {**opts, "time_limit_s": 5}),
+    ]
+    assert len({key, *changed}) == 5
+    assert repair_key("warehouse_even", lay, dict(reversed(list(opts.items())))) == key
+    # recorded files hold these keys: the digest must not drift with a refactor
+    assert key == "ae7f8a3dc5c8a72b6589adcc85d43153"
+    store = RepairStore(tmp_path)
+    store.add(key, RepairOutcome(lay, "optimal", 0.9, 3, 1.5))
+    store.add("failed", RepairOutcome(None, "infeasible", 0.0, None, 2.0))
+    again = RepairStore(tmp_path)  # as the next evaluation reads it
+    got = again.get(key)
+    assert got is not None and (got.status, got.similarity, got.hamming, got.seconds) == (
+        "optimal",
+        0.9,
+        3,
+        1.5,
+    )
+    np.testing.assert_array_equal(got.layout, lay)
+    assert again.get("failed") is None  # a repair that found nothing is tried again
+
+
+def load_map_rows(rows):
+    from nca_qd.io import rows_to_array
+    from nca_qd.layouts import warehouse as wh
+
+    return rows_to_array(rows, wh.TILES)
+
+
+def test_an_evaluation_into_the_same_folder_reuses_its_repairs_and_so_its_runs(tmp_path, maps, monkeypatch):
+    """The repair is time-limited, so repairing again may give another layout, which no
+    recorded run serves. A second evaluation into the folder repairs nothing and runs nothing
+    again; a folder written before repairs.jsonl adopts the layouts it saved; a saved layout
+    that breaks the domain's rules is repaired again."""
+    from nca_qd.scoring import tasks
+
+    calls: list[tuple[int, int]] = []
+    real_repair_task = tasks.repair_task
+
+    def counting_repair_task(domain_name, layout, options):
+        calls.append(np.shape(layout))
+        return real_repair_task(domain_name, layout, options)
+
+    monkeypatch.setattr(tasks, "repair_task", counting_repair_task)
+    run_dir = make_run(tmp_path / "run", elites=(3,))
+    out = tmp_path / "ev"
+    argv = [
+        f"run_dir={run_dir}",
+        f"out={out}",
+        "T=20",
+        "runs.train=1",
+        "runs.eval=1",
+        "exact.train=1",
+        "exact.eval=1",
+        "sweep.train.agents=[]",
+        "sweep.eval.agents=[]",
+        "sizes.shapes=[]",
+        "baselines.human=false",
+        "eval.workers=0",
+        "progress=false",
+    ]
+
+    def evaluate() -> tuple[int, int]:
+        calls.clear()
+        with contextlib.redirect_stdout(io.StringIO()):
+            assert evaluate_cli.main(argv) == 0
+        return len(calls), len((out / "exact_runs.jsonl").read_text().splitlines())
+
+    def figures() -> list[dict[str, str]]:  # the summary less its timings
+        return [{k: v for k, v in r.items() if "seconds" not in k} for r in read(out / "summary.csv")]
+
+    first = evaluate()
+    assert first == (3, 3)  # NCA at S and S_eval, tiling at S_eval; an exact run on each
+    summary = figures()
+    assert len((out / "repairs.jsonl").read_text().splitlines()) == 3
+    assert evaluate() == (0, 3)
+    assert figures() == summary
+    (out / "repairs.jsonl").unlink()  # as in a folder evaluated before repairs.jsonl
+    assert evaluate() == (0, 3)
+    assert len((out / "repairs.jsonl").read_text().splitlines()) == 3
+    (out / "repairs.jsonl").unlink()
+    broken = out / "layouts" / "nca_c3_13x18.json"
+    data = json.loads(broken.read_text())
+    data["layout"] = [row.replace("@", ".") for row in data["layout"]]  # no shelves left
+    broken.write_text(json.dumps(data))
+    assert evaluate()[0] == 1
+    assert len(figures()) == len(summary)
 
 
 def test_ctrl_c_during_the_screen_stops_the_exact_runs_at_once(monkeypatch):

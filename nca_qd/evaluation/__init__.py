@@ -29,8 +29,9 @@ bottom as the evaluation's steps); one module per step, each usable on its own:
 * :mod:`.layouts`: the run's archive, the layouts generated, tiled, loaded and repaired;
 * :mod:`.runs`: the exact RHCR runs and the screened runs of every (layout, agent count);
 * :mod:`.store`: every exact run recorded as it ends (``exact_runs.jsonl``), every screened
-  batch's runs likewise (``screen_runs.jsonl``), reused by the next evaluation into the same
-  folder, so an interrupted one resumes;
+  batch's runs likewise (``screen_runs.jsonl``), every repaired layout (``repairs.jsonl``: the
+  repair is time-limited, so repairing again may give another layout), reused by the next
+  evaluation into the same folder, so an interrupted one resumes;
 * :mod:`.stats`: the statistics of a set of runs;
 * :mod:`.tables`: the tables' rows (CSV, Markdown); :mod:`.plots`: the figures;
 * :mod:`.outputs`: every file written, and those an earlier evaluation left behind removed.
@@ -78,7 +79,7 @@ from nca_qd.evaluation.records import (
 from nca_qd.evaluation.runs import exact_run, merge_requests, screen_group, simulate_cells
 from nca_qd.evaluation.selection import Selection, select_scalable, write_selection
 from nca_qd.evaluation.stats import mean_se_ci, request_runs, run_stats
-from nca_qd.evaluation.store import ExactRunStore, ScreenRunStore
+from nca_qd.evaluation.store import ExactRunStore, RepairStore, ScreenRunStore
 from nca_qd.evaluation.tables import LAYOUT_COLUMNS, STAT_COLUMNS, layout_record, markdown_table, write_csv
 
 log = logging.getLogger("nca_qd.evaluate")
@@ -102,7 +103,8 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
     containers); writes every output under ``ecfg['out']`` (default <run_dir>/evaluation).
 
     Every repair goes through this module's ``repair_all`` (looked up when called and handed
-    to the selection and to the layouts), so replacing it here replaces them all."""
+    to the selection and to the layouts, with the folder's :class:`RepairStore` unless
+    ``repair.reuse=false``), so replacing it here replaces them all."""
     from omegaconf import OmegaConf
 
     from nca_qd.domains import make_domain
@@ -140,11 +142,14 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
     plan = Plan(ecfg, dcfg, name, scales=scales)
     backend = make_backend(ecfg.get("eval"))  # an unreachable scheduler fails here, early
     selection: Selection | None = None
+    repair_store = RepairStore(out) if ecfg["repair"]["reuse"] else None
+
+    def repair(backend: Any, domain_name: str, items: list) -> None:
+        repair_all(backend, domain_name, items, store=repair_store)
+
     try:
         if by_s_eval:
-            selection = select_scalable(
-                ecfg, dcfg, domain, archive, cells_idx, plan, backend, repair=repair_all
-            )
+            selection = select_scalable(ecfg, dcfg, domain, archive, cells_idx, plan, backend, repair=repair)
             cells_idx = selection.cells
         log.info(
             "evaluating %s (%s): cell(s) %s; sizes %s",
@@ -157,7 +162,7 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
             {selection.layouts[int(c)].key: selection.layouts[int(c)] for c in cells_idx} if selection else {}
         )
         layouts = build_layouts(
-            ecfg, dcfg, domain, archive, cells_idx, plan, backend, ready, repair=repair_all, algo=algo
+            ecfg, dcfg, domain, archive, cells_idx, plan, backend, ready, repair=repair, algo=algo
         )
         requests = plan.requests(layouts)
         check_agents(layouts, requests, name, tiles)
@@ -203,6 +208,7 @@ __all__ = [
     "EvalLayout",
     "Evaluation",
     "ExactRunStore",
+    "RepairStore",
     "ScreenRunStore",
     "Request",
     "Results",

@@ -19,7 +19,7 @@ import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -28,6 +28,10 @@ from nca_qd.evaluation.agents import positive_ints
 from nca_qd.evaluation.plan import Plan
 from nca_qd.evaluation.records import EvalLayout, parse_size, region_shape, size_map, size_str
 from nca_qd.layouts import get_layout, layout_names
+
+if TYPE_CHECKING:
+    from nca_qd.evaluation.store import RepairStore
+    from nca_qd.scoring.tasks import RepairOutcome
 
 log = logging.getLogger("nca_qd.evaluate")
 
@@ -143,16 +147,37 @@ def human_layout(domain_name: str, full: Sequence[int], tiles: str) -> np.ndarra
     return load_map(path, tiles).to_array(tiles)
 
 
-def repair_all(backend, domain_name: str, items: list[tuple[EvalLayout, dict]]) -> None:
-    """Repair each ``(layout, options)`` on the backend; sets ``layout`` and ``repair``."""
+def repair_all(
+    backend, domain_name: str, items: list[tuple[EvalLayout, dict]], store: RepairStore | None = None
+) -> None:
+    """Repair each ``(layout, options)`` on the backend; sets ``layout`` and ``repair``. With a
+    ``store``, a repair it holds (and whose layout passes the domain's rules) is reused and each
+    new one is recorded as it ends."""
+    from nca_qd.evaluation.store import repair_key
     from nca_qd.scoring.backend import JobFailed, map_jobs
     from nca_qd.scoring.tasks import RepairOutcome, repair_task
 
-    if not items:
+    todo: list[tuple[EvalLayout, dict]] = []
+    keys: list[str] = []
+    for it, opts in items:
+        key = repair_key(domain_name, it.unrepaired, opts)
+        known = _recorded_repair(store, key, domain_name, it, opts)
+        if known is not None:
+            it.repair, it.layout = known, known.layout
+            log.info("%s at %s: repair reused from %s", it.label, it.size, store.path)  # type: ignore[union-attr]
+            continue
+        todo.append((it, opts))
+        keys.append(key)
+    if not todo:
         return
-    log.info("repairing %d layout(s) on %s", len(items), backend.describe())
-    out = map_jobs(backend, repair_task, [(domain_name, it.unrepaired, opts) for it, opts in items])
-    for (it, _), res in zip(items, out):
+
+    def record(i: int, res: Any) -> None:
+        if store is not None and isinstance(res, RepairOutcome):
+            store.add(keys[i], res)
+
+    log.info("repairing %d layout(s) on %s", len(todo), backend.describe())
+    out = map_jobs(backend, repair_task, [(domain_name, it.unrepaired, opts) for it, opts in todo], record)
+    for (it, _), res in zip(todo, out):
         if isinstance(res, JobFailed):
             res = RepairOutcome(None, "error", 0.0, None, 0.0, res.error)
         it.repair, it.layout = res, res.layout
@@ -174,6 +199,40 @@ def repair_all(backend, domain_name: str, items: list[tuple[EvalLayout, dict]]) 
                 res.similarity,
                 res.seconds,
             )
+
+
+def _recorded_repair(
+    store: RepairStore | None, key: str, domain_name: str, item: EvalLayout, opts: Mapping[str, Any]
+) -> RepairOutcome | None:
+    """The store's repair for ``key`` if its layout still passes the domain's rules at these
+    options (an independent check: the rules may have changed since it was recorded)."""
+    from nca_qd.repair import make_rules, tiles_of
+    from nca_qd.repair.validator import check
+
+    if store is None:
+        return None
+    known = store.get(key)
+    if known is None and item.unrepaired is not None:
+        known = store.adopt_saved(key, item.key, item.unrepaired, tiles_of(domain_name))
+        if known is not None:
+            log.info("%s at %s: adopting the repaired layout saved under layouts/", item.label, item.size)
+    if known is None or known.layout is None:
+        return None
+    if known.layout.shape != np.asarray(item.unrepaired).shape:
+        return None
+    rules = make_rules(
+        domain_name,
+        known.layout.shape,
+        n_shelves=opts.get("n_shelves"),
+        n_agents=int(opts.get("n_agents", 200)),
+    )
+    bad = check(known.layout, rules)
+    if bad is not None:
+        log.warning(
+            "%s at %s: the recorded repair breaks a rule (%s); repairing again", item.label, item.size, bad
+        )
+        return None
+    return known
 
 
 # What repairs a list of (layout, options) in place (:func:`repair_all`'s signature).
@@ -199,7 +258,7 @@ def repair_opts(
     if n_s is not None:
         opts["n_shelves"] = int(n_s)
     opts["n_agents"] = max(int(opts.get("n_agents", 0)), plan.most_agents(shape))
-    opts.update({k: v for k, v in (e.get("repair") or {}).items() if v is not None})
+    opts.update({k: v for k, v in (e.get("repair") or {}).items() if v is not None and k != "reuse"})
     return opts
 
 

@@ -46,7 +46,8 @@ def validated(ecfg: Mapping[str, Any]) -> dict[str, Any]:
     tl = e["exact"].get("time_limit_s")
     if tl is not None and (isinstance(tl, bool) or not isinstance(tl, (int, float)) or tl <= 0):
         raise NcaQdError(f"exact.time_limit_s must be a positive number or null, got {tl!r}")
-    for part in ("exact", "screen"):
+    e["repair"] = dict(e.get("repair") or {})
+    for part in ("exact", "screen", "repair"):
         reuse = e[part].setdefault("reuse", True)
         if not isinstance(reuse, bool):
             raise NcaQdError(f"{part}.reuse must be true or false, got {reuse!r}")
