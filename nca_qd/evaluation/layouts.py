@@ -164,7 +164,6 @@ def repair_all(
         known = _recorded_repair(store, key, domain_name, it, opts)
         if known is not None:
             it.repair, it.layout = known, known.layout
-            log.info("%s at %s: repair reused from %s", it.label, it.size, store.path)  # type: ignore[union-attr]
             continue
         todo.append((it, opts))
         keys.append(key)
@@ -232,6 +231,7 @@ def _recorded_repair(
             "%s at %s: the recorded repair breaks a rule (%s); repairing again", item.label, item.size, bad
         )
         return None
+    log.info("%s at %s: repair reused from %s", item.label, item.size, store.path)
     return known
 
 
