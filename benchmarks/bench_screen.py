@@ -66,6 +66,13 @@ crowding threshold): exact RHCR (threads: all CPUs; cached in ``BENCH_SCREEN_RHC
 set) against the screen, run by run and by each layout's majority verdict; where both flow,
 the screen's throughput (raw, scaled by 1.3 and the free-flow estimate) against RHCR's.
 
+Drift of a calibrated threshold (``BENCH_SCREEN_PARTS=crowd_drift``, not in the default set:
+minutes of screening, no RHCR): the exactly-run layouts of a search's memo
+(``BENCH_SCREEN_MEMO``, here default ``results/manufacturing_a5/eval_memo.npz``) from iteration
+``BENCH_SCREEN_MEMO_FROM`` to ``BENCH_SCREEN_MEMO_UNTIL``, each threshold's majority verdicts
+against RHCR's: a threshold fitted on a search's first, mostly random layouts may misjudge the
+denser ones it finds later.
+
 A domain's crowding threshold (``BENCH_SCREEN_PARTS=crowd_threshold``, not in the default set:
 minutes of screening, no RHCR): the exactly-run layouts of a search's memo
 (``BENCH_SCREEN_MEMO``, here default ``results/warehouse_uneven_a5/eval_memo.npz``; only the
@@ -811,6 +818,83 @@ def _crowd_replay(crowd, tasks, stop0, ok0, threshold: float, replan: int = 5):
     return ok0 & (first < 0), thr
 
 
+def _replay_records(runs):
+    """Screened runs made under RHCR's rule alone ([layout][seed]) as the arrays
+    ``_crowd_replay`` reads: crowding per check, tasks per step, stop times, verdicts."""
+    crowd = np.zeros((len(runs), len(SEEDS), T // 5))
+    tasks = np.zeros((len(runs), len(SEEDS), T))
+    for i, row in enumerate(runs):
+        for s, r in enumerate(row):
+            crowd[i, s, : len(r.crowding)] = r.crowding
+            tasks[i, s] = r.tasks_per_step
+    stop0 = np.array([[r.stop_time for r in row] for row in runs])
+    ok0 = np.array([[r.success for r in row] for row in runs])
+    return crowd, tasks, stop0, ok0
+
+
+def crowd_drift() -> None:
+    """Whether a crowding threshold calibrated on a search's first iterations still judges the
+    layouts the search runs exactly later: each exactly-run layout of the memo's iterations
+    ``BENCH_SCREEN_MEMO_FROM``..``BENCH_SCREEN_MEMO_UNTIL``, screened (200 agents, T=1,000, 5
+    seeds) under RHCR's rule alone and the crowding rule replayed per threshold; majority
+    verdicts against RHCR's, and the layouts each side alone calls congested."""
+    from nca_qd.io import array_to_rows
+    from nca_qd.layouts import get_layout
+    from nca_qd.scoring.memo import layout_key
+    from nca_qd.sim.screen import simulate_scenarios
+
+    path = Path(os.environ.get("BENCH_SCREEN_MEMO", "results/manufacturing_a5/eval_memo.npz"))
+    if not path.is_file():
+        print(f"crowd_drift: no memo at {path} (set BENCH_SCREEN_MEMO)")
+        return
+    lo = int(os.environ.get("BENCH_SCREEN_MEMO_FROM", 0))
+    hi = int(os.environ.get("BENCH_SCREEN_MEMO_UNTIL", 10**9))
+    memo = np.load(path)
+    scenario = json.loads(str(memo["fingerprint"]))["domain"]
+    tiles = get_layout(scenario, "domain").tiles
+    by_key = {layout_key(lay): i for i, lay in enumerate(memo["repair_layouts"])}
+    entries = [
+        j
+        for j, k in enumerate(memo["exact_keys"])
+        if bytes(k) in by_key and lo <= memo["exact_iteration"][j] <= hi
+    ]
+    scens = [
+        build_scenario(
+            array_to_rows(memo["repair_layouts"][by_key[bytes(memo["exact_keys"][j])]], tiles), scenario
+        )
+        for j in entries
+    ]
+    runs = [
+        row
+        for a in range(0, len(scens), 64)
+        for row in simulate_scenarios(scens[a : a + 64], AGENTS, T, SEEDS, congestion="moved")
+    ]
+    crowd, tasks, stop0, ok0 = _replay_records(runs)
+    rhcr = memo["exact_success"][entries].astype(bool).mean(1) > 0.5
+    print(
+        json.dumps(
+            {
+                "memo": str(path),
+                "iterations": [lo, min(hi, int(memo["exact_iteration"].max()))],
+                "layouts": len(entries),
+                "rhcr_flows": int(rhcr.sum()),
+            }
+        )
+    )
+    for x in np.arange(16.0, 30.01, 2.0):
+        flows = _crowd_replay(crowd, tasks, stop0, ok0, float(x))[0].mean(1) > 0.5
+        print(
+            json.dumps(
+                {
+                    "threshold": float(x),
+                    "majority_agreement": round(float(np.mean(flows == rhcr)), 3),
+                    "rhcr_flows_screen_congests": int(np.sum(rhcr & ~flows)),
+                    "rhcr_congests_screen_flows": int(np.sum(~rhcr & flows)),
+                }
+            )
+        )
+
+
 def crowd_threshold() -> None:
     """Calibrate a domain's crowding threshold on half a search's memo, check it on the rest."""
     from omegaconf import OmegaConf
@@ -866,15 +950,7 @@ def crowd_threshold() -> None:
         f"== crowding threshold: {scenario}, {len(entries)} exactly-run layouts of {path} "
         f"(iterations <= {until}), {len(cal)} to calibrate on, {len(halves['check'])} to check"
     )
-    runs = screen(cal, "moved")
-    crowd = np.zeros((len(cal), len(SEEDS), T // 5))
-    tasks = np.zeros((len(cal), len(SEEDS), T))
-    for i, row in enumerate(runs):
-        for s, r in enumerate(row):
-            crowd[i, s, : len(r.crowding)] = r.crowding
-            tasks[i, s] = r.tasks_per_step
-    stop0 = np.array([[r.stop_time for r in row] for row in runs])
-    ok0 = np.array([[r.success for r in row] for row in runs])
+    crowd, tasks, stop0, ok0 = _replay_records(screen(cal, "moved"))
     rhcr_ok, _ = verdicts(cal)
     grid = np.arange(14.0, 30.01, 0.25)
     agree = [
@@ -940,6 +1016,8 @@ def main() -> None:
         fit_congested()
     if "crowd_threshold" in parts:
         crowd_threshold()
+    if "crowd_drift" in parts:
+        crowd_drift()
     if "fidelity_mixed" in parts:
         fidelity_mixed()
 
