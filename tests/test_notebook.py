@@ -24,12 +24,23 @@ def test_the_notebook_explores_a_dsage_run(tmp_path, monkeypatch):
     _execute(run_dir, tmp_path, monkeypatch, 3)  # the archive, elites at S, one more at S
 
 
-def _execute(run_dir, tmp_path, monkeypatch, n_images):
-    monkeypatch.setenv("NCA_QD_RUN_DIR", str(run_dir))
+def test_the_notebook_opens_the_shipped_archive_by_default(monkeypatch):
+    """Started in notebooks/ with no run named, it explores results/warehouse_even_a5 (its
+    portable snapshot: the repository ships no full checkpoint)."""
+    monkeypatch.delenv("NCA_QD_RUN_DIR", raising=False)
+    nb = _execute(None, NOTEBOOK.parent, monkeypatch, 4)
+    assert "cma_mae on warehouse_even" in "".join(
+        o.get("text", "") for o in nb.cells[1].get("outputs", []) if o.get("output_type") == "stream"
+    )
+
+
+def _execute(run_dir, cwd, monkeypatch, n_images):
+    if run_dir is not None:
+        monkeypatch.setenv("NCA_QD_RUN_DIR", str(run_dir))
     monkeypatch.setenv("JAX_PLATFORMS", "cpu")
     nb = nbformat.read(NOTEBOOK, as_version=4)
     NotebookClient(
-        nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}
+        nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(cwd)}}
     ).execute()
     images = [
         o
@@ -47,3 +58,4 @@ def _execute(run_dir, tmp_path, monkeypatch, n_images):
         if o.get("output_type") == "error"
     ]
     assert not errors
+    return nb
