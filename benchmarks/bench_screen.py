@@ -832,24 +832,13 @@ def _replay_records(runs):
     return crowd, tasks, stop0, ok0
 
 
-def crowd_drift() -> None:
-    """Whether a crowding threshold calibrated on a search's first iterations still judges the
-    layouts the search runs exactly later: each exactly-run layout of the memo's iterations
-    ``BENCH_SCREEN_MEMO_FROM``..``BENCH_SCREEN_MEMO_UNTIL``, screened (200 agents, T=1,000, 5
-    seeds) under RHCR's rule alone and the crowding rule replayed per threshold; majority
-    verdicts against RHCR's, and the layouts each side alone calls congested."""
+def _memo_exact_layouts(memo, lo: int, hi: int):
+    """A search memo's exactly-run layouts of iterations ``lo``..``hi``: the domain, their
+    indices among the memo's exact entries, and a function giving any entries' scenarios."""
     from nca_qd.io import array_to_rows
     from nca_qd.layouts import get_layout
     from nca_qd.scoring.memo import layout_key
-    from nca_qd.sim.screen import simulate_scenarios
 
-    path = Path(os.environ.get("BENCH_SCREEN_MEMO", "results/manufacturing_a5/eval_memo.npz"))
-    if not path.is_file():
-        print(f"crowd_drift: no memo at {path} (set BENCH_SCREEN_MEMO)")
-        return
-    lo = int(os.environ.get("BENCH_SCREEN_MEMO_FROM", 0))
-    hi = int(os.environ.get("BENCH_SCREEN_MEMO_UNTIL", 10**9))
-    memo = np.load(path)
     scenario = json.loads(str(memo["fingerprint"]))["domain"]
     tiles = get_layout(scenario, "domain").tiles
     by_key = {layout_key(lay): i for i, lay in enumerate(memo["repair_layouts"])}
@@ -858,18 +847,47 @@ def crowd_drift() -> None:
         for j, k in enumerate(memo["exact_keys"])
         if bytes(k) in by_key and lo <= memo["exact_iteration"][j] <= hi
     ]
-    scens = [
-        build_scenario(
-            array_to_rows(memo["repair_layouts"][by_key[bytes(memo["exact_keys"][j])]], tiles), scenario
-        )
-        for j in entries
-    ]
-    runs = [
+
+    def scenarios(entries_):
+        return [
+            build_scenario(
+                array_to_rows(memo["repair_layouts"][by_key[bytes(memo["exact_keys"][j])]], tiles), scenario
+            )
+            for j in entries_
+        ]
+
+    return scenario, entries, scenarios
+
+
+def _screen_in_chunks(scens, congestion: str, threshold: float | None = None):
+    """Screen scenarios 64 at a time (AGENTS, T, SEEDS): [scenario][seed] runs."""
+    from nca_qd.sim.screen import CROWD_MEAN, simulate_scenarios
+
+    crowd_mean = CROWD_MEAN if threshold is None else threshold
+    return [
         row
         for a in range(0, len(scens), 64)
-        for row in simulate_scenarios(scens[a : a + 64], AGENTS, T, SEEDS, congestion="moved")
+        for row in simulate_scenarios(
+            scens[a : a + 64], AGENTS, T, SEEDS, congestion=congestion, crowd_mean=crowd_mean
+        )
     ]
-    crowd, tasks, stop0, ok0 = _replay_records(runs)
+
+
+def crowd_drift() -> None:
+    """Whether a crowding threshold calibrated on a search's first iterations still judges the
+    layouts the search runs exactly later: each exactly-run layout of the memo's iterations
+    ``BENCH_SCREEN_MEMO_FROM``..``BENCH_SCREEN_MEMO_UNTIL``, screened (200 agents, T=1,000, 5
+    seeds) under RHCR's rule alone and the crowding rule replayed per threshold; majority
+    verdicts against RHCR's, and the layouts each side alone calls congested."""
+    path = Path(os.environ.get("BENCH_SCREEN_MEMO", "results/manufacturing_a5/eval_memo.npz"))
+    if not path.is_file():
+        print(f"crowd_drift: no memo at {path} (set BENCH_SCREEN_MEMO)")
+        return
+    lo = int(os.environ.get("BENCH_SCREEN_MEMO_FROM", 0))
+    hi = int(os.environ.get("BENCH_SCREEN_MEMO_UNTIL", 10**9))
+    memo = np.load(path)
+    _, entries, scenarios = _memo_exact_layouts(memo, lo, hi)
+    crowd, tasks, stop0, ok0 = _replay_records(_screen_in_chunks(scenarios(entries), "moved"))
     rhcr = memo["exact_success"][entries].astype(bool).mean(1) > 0.5
     print(
         json.dumps(
@@ -900,10 +918,7 @@ def crowd_threshold() -> None:
     from omegaconf import OmegaConf
 
     from experiments.cli import compose_config
-    from nca_qd.io import array_to_rows
-    from nca_qd.layouts import get_layout
-    from nca_qd.scoring.memo import layout_key
-    from nca_qd.sim.screen import CROWD_MEAN, crowd_mean_for, simulate_scenarios
+    from nca_qd.sim.screen import CROWD_MEAN, crowd_mean_for
 
     path = Path(os.environ.get("BENCH_SCREEN_MEMO", "results/warehouse_uneven_a5/eval_memo.npz"))
     if not path.is_file():
@@ -911,35 +926,13 @@ def crowd_threshold() -> None:
         return
     until = int(os.environ.get("BENCH_SCREEN_MEMO_UNTIL", 28))
     memo = np.load(path)
-    scenario = json.loads(str(memo["fingerprint"]))["domain"]
+    scenario, entries, scenarios = _memo_exact_layouts(memo, int(memo["exact_iteration"].min()), until)
     configured = crowd_mean_for(OmegaConf.to_container(compose_config("run", [f"domain={scenario}"]).domain))
-    by_key = {layout_key(lay): i for i, lay in enumerate(memo["repair_layouts"])}
-    entries = [
-        j
-        for j, k in enumerate(memo["exact_keys"])
-        if bytes(k) in by_key and memo["exact_iteration"][j] <= until
-    ]
     order = np.random.default_rng(2).permutation(entries)
     halves = {"calibration": np.sort(order[: len(order) // 2]), "check": np.sort(order[len(order) // 2 :])}
-    tiles = get_layout(scenario, "domain").tiles
-
-    def scenarios(entries_):
-        return [
-            build_scenario(
-                array_to_rows(memo["repair_layouts"][by_key[bytes(memo["exact_keys"][j])]], tiles), scenario
-            )
-            for j in entries_
-        ]
 
     def screen(entries_, congestion, threshold=CROWD_MEAN):
-        scens = scenarios(entries_)
-        return [
-            row
-            for a in range(0, len(scens), 64)
-            for row in simulate_scenarios(
-                scens[a : a + 64], AGENTS, T, SEEDS, congestion=congestion, crowd_mean=threshold
-            )
-        ]
+        return _screen_in_chunks(scenarios(entries_), congestion, threshold)
 
     def verdicts(entries_):
         ok = memo["exact_success"][entries_].astype(bool)
