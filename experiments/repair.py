@@ -66,7 +66,9 @@ def main(argv: list[str]) -> int:
         "valid": valid,
         "objective": res.objective,
         "method": res.method,
-        "lower_bound": res.details.get("lower_bound"),
+        # proven: the whole-map MILP's dual bound where it ran, else the tile-count bound
+        "bound": res.details.get("bound"),
+        "gap": None if res.details.get("gap") is None else round(res.details["gap"], 6),
     }
     if res.layout is not None:
         extra = dict(mapfile.extra)

@@ -70,15 +70,15 @@ class NCAGenerator:
         x, _ = jax.lax.scan(step, x0, None, length=n_iters)
         return x[0]
 
-    def _generate_impl(self, flat_batch: jax.Array, seed: jax.Array, n_iters: int) -> jax.Array:
-        # The same maths as ``vmap(rollout_probs)``, written as batched matmuls in a
-        # channels-first layout: vmapping the Flax conv over per-member weights becomes a
-        # grouped convolution that XLA's CPU backend runs about 3x slower (measured: 0.55 s vs
-        # 0.15 s for 150 generators x 50 steps at 16x16). ``tests/test_nca.py`` checks both
-        # paths agree.
+    def _step_fn(self, flat_batch: jax.Array, shape: tuple[int, int]):
+        """One NCA step of every member on a channels-first ``[b, n, H, W]`` state.
+
+        Written as batched matmuls rather than a vmapped Flax conv, which XLA's CPU backend
+        runs as a grouped convolution about 3x slower (docs/benchmarks.md);
+        ``tests/test_nca.py`` checks both paths agree."""
         params = jax.vmap(self.unflatten)(flat_batch)["params"]
         b, n = flat_batch.shape[0], self.n_tiles
-        h, w = seed.shape
+        h, w = shape
 
         def weights(name: str) -> tuple[jax.Array, jax.Array]:
             kernel = params[name]["kernel"]  # [b, kh, kw, in, out]
@@ -86,10 +86,8 @@ class NCAGenerator:
             return jnp.swapaxes(mat, 1, 2), params[name]["bias"][:, :, None]
 
         (w1, b1), (w2, b2), (w3, b3) = (weights(k) for k in ("conv3x3", "conv1x1_a", "conv1x1_b"))
-        x0 = jnp.moveaxis(jax.nn.one_hot(seed, n, dtype=jnp.float32), -1, 0)
-        x0 = jnp.broadcast_to(x0, (b, n, h, w))
 
-        def step(x, _):
+        def step(x):
             xp = jnp.pad(x, ((0, 0), (0, 0), (1, 1), (1, 1)))  # zero padding, as the conv's SAME
             patches = jnp.concatenate(
                 [xp[:, :, dy : dy + h, dx : dx + w] for dy in range(3) for dx in range(3)], axis=1
@@ -97,10 +95,49 @@ class NCAGenerator:
             z = jax.nn.relu(jnp.einsum("bok,bkp->bop", w1, patches) + b1)
             z = jax.nn.relu(jnp.einsum("bok,bkp->bop", w2, z) + b2)
             out = jax.nn.sigmoid(jnp.einsum("bok,bkp->bop", w3, z) + b3)
-            return out.reshape(b, n, h, w), None
+            return out.reshape(b, n, h, w)
 
-        x, _ = jax.lax.scan(step, x0, None, length=n_iters)
+        return step
+
+    def _x0(self, b: int, seed: jax.Array) -> jax.Array:
+        x0 = jnp.moveaxis(jax.nn.one_hot(seed, self.n_tiles, dtype=jnp.float32), -1, 0)
+        return jnp.broadcast_to(x0, (b, self.n_tiles, *seed.shape))
+
+    def _generate_impl(self, flat_batch: jax.Array, seed: jax.Array, n_iters: int) -> jax.Array:
+        step = self._step_fn(flat_batch, seed.shape)
+        x, _ = jax.lax.scan(
+            lambda x, _: (step(x), None), self._x0(flat_batch.shape[0], seed), None, length=n_iters
+        )
         return jnp.argmax(x, axis=1).astype(jnp.int32)
+
+    def _trajectory_impl(self, flat_batch: jax.Array, seed: jax.Array, n_iters: int, extra: int):
+        step = self._step_fn(flat_batch, seed.shape)
+        x, _ = jax.lax.scan(
+            lambda x, _: (step(x), None), self._x0(flat_batch.shape[0], seed), None, length=n_iters
+        )
+
+        def keep(x, _):
+            x = step(x)
+            return x, jnp.argmax(x, axis=1).astype(jnp.int8)
+
+        _, later = jax.lax.scan(keep, x, None, length=extra)
+        first = jnp.argmax(x, axis=1).astype(jnp.int8)
+        top2 = jax.lax.top_k(jnp.moveaxis(x, 1, -1), 2)[0]
+        tied = (top2[..., 0] == top2[..., 1]).mean(axis=(1, 2))
+        return jnp.concatenate([first[None], later], axis=0).swapaxes(0, 1), tied
+
+    def trajectory(self, flat_batch, seed, n_iters: int, extra: int) -> tuple[np.ndarray, np.ndarray]:
+        """Layouts ``[b, extra + 1, H, W]`` at iterations ``n_iters .. n_iters + extra`` and, per
+        member, the fraction of cells whose two largest channels are exactly equal at
+        ``n_iters`` (a saturated sigmoid gives 1.0 twice; the argmax then picks by index)."""
+        flat_batch = jnp.asarray(flat_batch, dtype=jnp.float32)
+        chex.assert_axis_dimension(flat_batch, 1, self.n_params)
+        if not hasattr(self, "_trajectory"):
+            self._trajectory = jax.jit(self._trajectory_impl, static_argnames=("n_iters", "extra"))
+        layouts, tied = self._trajectory(
+            flat_batch, jnp.asarray(seed, dtype=jnp.int32), n_iters=int(n_iters), extra=int(extra)
+        )
+        return np.asarray(layouts), np.asarray(tied)
 
     def generate(self, flat_batch: jax.Array, seed: np.ndarray | jax.Array, n_iters: int) -> jax.Array:
         """Environments ``[b, H, W]`` (tile indices) from parameters ``[b, d]`` and a seed ``[H, W]``."""

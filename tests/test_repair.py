@@ -74,6 +74,22 @@ def test_full_milp_is_optimal_and_no_worse_than_neighbourhood(seed):
     assert_result_ok(full, "warehouse_even", lay, n_shelves=6)
     assert_result_ok(fast, "warehouse_even", lay, n_shelves=6)
     assert full.objective <= fast.objective
+    # proven bounds: the full MILP's equals its optimum; every repair's bound is at most the
+    # optimum (checked against the full MILP's, not against its own objective)
+    assert full.details["bound"] == full.objective and full.details["gap"] == 0.0
+    assert fast.details["bound"] <= full.objective <= fast.objective
+    assert fast.details["gap"] == pytest.approx((fast.objective - fast.details["bound"]) / fast.objective)
+
+
+def test_distance_bound_rounds_the_dual_bound_to_integer_distances():
+    from nca_qd.repair.milp import distance_bound
+
+    assert distance_bound(146.0000001, False) == 146.0
+    assert distance_bound(145.2, False) == 146.0
+    # with tie costs (< 1 in all) the objective is distance + ties: distance > bound - 1
+    assert distance_bound(146.3, True) == 146.0
+    assert distance_bound(146.0, True) == 146.0
+    assert distance_bound(float("-inf"), True) is None
 
 
 @settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -165,7 +181,7 @@ def _stage_two_windows(monkeypatch, status):
     layout = wh.assemble(storage)
     res = repair("warehouse_even", layout, n_shelves=20, **FAST)
     assert_result_ok(res, "warehouse_even", layout, n_shelves=20)  # the greedy still delivers
-    return sizes, res.details["lower_bound"]
+    return sizes, res.details["count_bound"]
 
 
 def test_the_violation_neighbourhood_skips_windows_too_small_for_the_count_gap(monkeypatch):

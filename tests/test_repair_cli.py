@@ -51,6 +51,11 @@ def test_repair_writes_a_valid_layout_and_one_json_line(tmp_path, monkeypatch, c
     line = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert line["valid"] is True and line["status"] in ("optimal", "feasible")
     assert {"hamming", "similarity", "seconds"} <= set(line)
+    # the printed bound is proven: at most the distance found, and the gap says how far
+    assert line["bound"] <= line["objective"] and 0.0 <= line["gap"] <= 1.0
+    if line["status"] == "optimal":
+        assert line["gap"] == 0.0
+    assert "lower_bound" not in line
     lay = load_map(out, wh.TILES).to_array(wh.TILES)
     assert check(lay, make_rules("warehouse_even", lay.shape, n_shelves=6)) is None
     assert line["hamming"] == int((lay != load_map(src).to_array(wh.TILES)).sum())

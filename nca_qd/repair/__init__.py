@@ -132,7 +132,9 @@ def repair(
     get_layout(domain_name).check_frame(layout, "layout")
     greedy = _greedy_for(domain_name, rules, n_agents)
     improve_time_s = resolve_improve_time(improve_time_s, int((~rules.fixed).sum()))
-    details: dict[str, Any] = {"lower_bound": lower_bound(layout, rules)}
+    # ``count_bound``: each changed cell moves a tile count by at most one (cheap, proven, weak);
+    # ``milp_bound``: the whole-map MILP's dual bound where it ran (hybrid, full).
+    details: dict[str, Any] = {"count_bound": lower_bound(layout, rules)}
     if _count_impossible(rules):
         status, best = "infeasible", None
     elif method in ("neighbourhood", "hybrid"):
@@ -167,16 +169,30 @@ def repair(
             details["invalid"] = str(bad)
             status, best = "no_solution", None
     weights = rules.cell_weights(layout)
+    objective = None if best is None else weighted_distance(best, layout, weights)
+    _bound_and_gap(details, status, objective)
     return RepairResult(
         status=status,
         layout=best,
-        objective=None if best is None else weighted_distance(best, layout, weights),
+        objective=objective,
         hamming=None if best is None else int((best != layout).sum()),
         similarity=0.0 if best is None else similarity(layout, best, rules),
         seconds=time.perf_counter() - t0,
         method=method,
         details=details,
     )
+
+
+def _bound_and_gap(details: dict[str, Any], status: str, objective: float | None) -> None:
+    """``bound``: the best proven lower bound on the weighted distance (the MILP's where it ran,
+    else the count bound; the objective itself when the repair is proven optimal), and ``gap``:
+    ``(objective - bound) / objective`` (0 for a layout already valid)."""
+    bound = max(float(details["count_bound"]), float(details.get("milp_bound") or 0.0))
+    if status == "optimal" and objective is not None and "milp_bound" not in details:
+        bound = objective  # valid as given, or proven by the neighbourhood's own full solve
+    details["bound"] = bound
+    if objective is not None:
+        details["gap"] = 0.0 if objective <= 0 else max(0.0, (objective - bound) / objective)
 
 
 def tie_costs(layout: np.ndarray, rules: Rules, seed: int) -> np.ndarray:
@@ -226,6 +242,9 @@ def _polish(layout, start, rules, time_limit, threads, seed, details):
         start, layout, ~rules.fixed, rules, time_limit=time_limit, threads=threads, seed=seed, warm_start=True
     )
     details["milp_s"] = res.seconds
+    details["milp_nodes"] = res.nodes
+    if res.bound is not None:
+        details["milp_bound"] = res.bound
     if res.layout is None or not is_valid(res.layout, rules):
         return "feasible", start
     after = weighted_distance(res.layout, layout, weights)
@@ -253,6 +272,9 @@ def _full(layout, rules, greedy, time_limit, threads, seed, details):
         warm_start=warm,
     )
     details["milp_s"] = res.seconds
+    details["milp_nodes"] = res.nodes
+    if res.bound is not None:
+        details["milp_bound"] = res.bound
     if res.status == "infeasible":
         return "infeasible", None
     if res.layout is None:

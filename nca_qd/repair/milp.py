@@ -68,6 +68,9 @@ class WindowResult:
         ``timeout`` (no solution in time).
     layout: the full layout with the window re-solved (None unless optimal/feasible).
     objective: weighted Hamming distance inside the window (None without a solution).
+    bound: proven lower bound on that distance (HiGHS's dual bound, less any tie costs, rounded
+        up to the integer distances); None when the solver proved nothing.
+    nodes: branch-and-bound nodes HiGHS explored.
     """
 
     status: str
@@ -75,6 +78,8 @@ class WindowResult:
     objective: float | None
     seconds: float
     n_cells: int
+    bound: float | None = None
+    nodes: int = 0
 
 
 class _Rows:
@@ -314,10 +319,12 @@ def solve_window(
     info = hs.getInfo()
     seconds = time.perf_counter() - t0
     has_solution = info.primal_solution_status == 2  # kSolutionStatusFeasible
+    bound = distance_bound(info.mip_dual_bound, rules.tie_costs is not None)
+    nodes = int(info.mip_node_count)
     if status == highspy.HighsModelStatus.kInfeasible:
-        return WindowResult("infeasible", None, None, seconds, n)
+        return WindowResult("infeasible", None, None, seconds, n, None, nodes)
     if not has_solution:
-        return WindowResult("timeout", None, None, seconds, n)
+        return WindowResult("timeout", None, None, seconds, n, bound, nodes)
     values = np.asarray(hs.getSolution().col_value)
     x = values[:n_x].reshape(n, K)
     new = current.copy()
@@ -327,7 +334,17 @@ def solve_window(
     # The window's weighted Hamming distance (the solver's objective less any tie costs).
     p = rules.cell_weights(layout_in)
     distance = float(sum(p[r, c] for r, c in cells if new[r, c] != layout_in[r, c]))
-    return WindowResult(label, new, distance, seconds, n)
+    return WindowResult(label, new, distance, seconds, n, bound, nodes)
+
+
+def distance_bound(dual_bound: float, tie_costs: bool) -> float | None:
+    """The least integer weighted distance HiGHS's dual bound allows. With tie costs (summing
+    to less than 1) the objective is distance + ties, so distance > dual bound - 1."""
+    if not np.isfinite(dual_bound):
+        return None
+    if tie_costs:
+        return float(max(0.0, np.ceil(dual_bound - 1.0 + 1e-9)))
+    return float(max(0.0, np.ceil(dual_bound - 1e-6)))
 
 
 def _warm_start(current, cells, cid, edges, n, n_nodes, source, free, rules, K, n_cols, f0, y0, s0):

@@ -1,0 +1,109 @@
+"""Whether a generator settles: the kinds of nca_qd.dynamics on layouts built to be of each kind,
+the generator's trajectory against its plain generation, and the command on the shipped run."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+
+from experiments import dynamics as dynamics_cli
+from experiments.cli import main_guard
+from nca_qd.dynamics import classify, shifted_mismatch, summarise
+from nca_qd.nca import NCAGenerator
+
+RNG = np.random.default_rng(0)
+SHIPPED = Path(__file__).resolve().parents[1] / "results" / "warehouse_even_a5"
+
+
+def test_shifted_mismatch_finds_the_move():
+    a = RNG.integers(0, 3, (20, 24))
+    b = np.roll(a, (1, -2), axis=(0, 1))  # a's content moved down 1, left 2
+    m, dy, dx = shifted_mismatch(a, b, 2)
+    assert (m, dy, dx) == (0.0, 1, -2)
+    assert (a != b).mean() > 0.5  # unmoved, they differ in most cells
+
+
+@pytest.mark.parametrize("kind", ["still", "travelling", "period_2", "other"])
+def test_classify_names_each_kind(kind):
+    a, b = RNG.integers(0, 3, (2, 30, 30))
+    if kind == "still":
+        seq = [a, a, a, a]
+    elif kind == "travelling":
+        seq = [np.roll(a, (0, i), axis=(0, 1)) for i in range(4)]
+    elif kind == "period_2":
+        seq = [a, b, a, b]
+    else:
+        seq = list(RNG.integers(0, 3, (4, 30, 30)))
+    got = classify(np.stack(seq), 3)
+    assert got["kind"] == kind
+
+
+def test_share_swing_is_the_largest_change_of_a_tile_share():
+    full = np.ones((10, 10), dtype=int)
+    empty = np.zeros((10, 10), dtype=int)
+    half = full.copy()
+    half[:5] = 0
+    got = classify(np.stack([full, empty, half]), 2)
+    assert got["kind"] == "other"
+    assert got["share_swing"] == pytest.approx(1.0)
+    assert summarise(["still", "other", "other", "travelling"]) == {
+        "still": 0.25,
+        "travelling": 0.25,
+        "period_2": 0.0,
+        "other": 0.5,
+    }
+
+
+def test_trajectory_matches_generation_and_counts_ties():
+    gen = NCAGenerator(n_tiles=3)
+    flat = np.stack([np.asarray(gen.init_flat(jax.random.PRNGKey(i))) * 4 for i in range(3)])
+    seed = RNG.integers(0, 3, (12, 11))
+    layouts, tied = gen.trajectory(flat, seed, 7, 3)
+    assert layouts.shape == (3, 4, 12, 11)
+    for k in range(4):
+        np.testing.assert_array_equal(layouts[:, k], np.asarray(gen.generate(flat, seed, 7 + k)))
+    # all-zero weights: every channel outputs sigmoid(0) = 0.5, all cells tied
+    _, tied0 = gen.trajectory(np.zeros((1, gen.n_params)), seed, 2, 2)
+    assert tied0[0] == 1.0 and (tied >= 0).all() and (tied <= 1).all()
+
+
+def _cli(argv, monkeypatch):
+    monkeypatch.setattr(sys, "argv", ["prog", *argv])
+    with pytest.raises(SystemExit) as exc:
+        main_guard(dynamics_cli.main)()
+    return exc.value.code
+
+
+@pytest.mark.parametrize(
+    "argv, expect",
+    [
+        ([], "give run_dir"),
+        (["run_dir=/nonexistent"], "does not exist"),
+        (["run_dir=.", "size=big"], "size must be train or eval"),
+        (["run_dir=.", "extra=1"], "extra must be an integer >= 2"),
+        (["run_dir=.", "top=0"], "top must be a positive integer"),
+        (["run_dir=.", "out=/nonexistent/d.csv"], "does not exist"),
+    ],
+)
+def test_bad_input_is_one_line_and_exit_2(argv, expect, monkeypatch, capsys):
+    assert _cli(argv, monkeypatch) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and expect in err[0]
+
+
+@pytest.mark.skipif(not SHIPPED.is_dir(), reason="shipped run not present")
+def test_the_command_classifies_the_shipped_archive(tmp_path, monkeypatch, capsys):
+    out = tmp_path / "d.csv"
+    argv = [f"run_dir={SHIPPED}", "top=3", f"out={out}"]
+    assert _cli(argv, monkeypatch) == 0
+    text = capsys.readouterr().out
+    assert "10 best (3, 33x32, C=50..54)" in text
+    rows = out.read_text().splitlines()
+    assert rows[0].startswith("cell,objective,kind") and len(rows) == 4
+    # the shipped best generator (cell 5041) is nearly still at S: it changes < 1 % of cells
+    first = dict(zip(rows[0].split(","), rows[1].split(",")))
+    assert first["cell"] == "5041" and float(first["changed_1"]) < 0.01
