@@ -107,11 +107,17 @@ def test_hybrid_is_valid_never_worse_than_its_start_and_optimal_with_time(cells)
     assert full.status == "optimal" and hy.status == "optimal"
     assert hy.objective == full.objective <= nb.objective
     # Under work limits (improve_windows: the same repair whatever the load) hybrid is the
-    # neighbourhood repair alone: the MILP's only budget would be time.
+    # neighbourhood repair, then the whole map's LP relaxation (no MILP: its only budget would
+    # be time): never farther than the neighbourhood, its bound at most the proven optimum,
+    # "optimal" only when it meets that bound, and the same layout on every call.
     det = dict(n_shelves=6, time_limit_s=60, improve_windows=1, seed=0)
     a = repair("warehouse_even", lay, method="hybrid", **det)
     b = repair("warehouse_even", lay, method="neighbourhood", **det)
-    assert a.status == b.status and np.array_equal(a.layout, b.layout)
+    again = repair("warehouse_even", lay, method="hybrid", **det)
+    assert_result_ok(a, "warehouse_even", lay, n_shelves=6)
+    assert a.objective <= b.objective and a.details["bound"] <= full.objective
+    assert (a.status == "optimal") == (a.objective <= a.details["bound"])
+    assert np.array_equal(a.layout, again.layout) and a.status == again.status
 
 
 def test_hybrid_per_size_options_come_from_the_domain_config():
@@ -250,3 +256,35 @@ def test_random_tie_break_neighbourhood_methods_stay_valid_and_near(method):
 def test_unknown_tie_break_is_refused():
     with pytest.raises(Exception, match="unknown tie_break 'maybe'"):
         repair("warehouse_even", _rows_of_endpoints(), n_shelves=4, tie_break="maybe")
+
+
+def test_work_limits_give_the_same_repair_on_a_slow_clock(monkeypatch):
+    """improve_windows bounds the repair by work: a clock that runs 20 ms per reading (a loaded
+    machine, to the code) changes nothing; the time-bounded default stops early on it."""
+    import itertools
+    import time as real_time
+
+    from nca_qd.repair import neighbourhood
+
+    rng = np.random.default_rng(1)
+    lay = wh.assemble(rng.integers(0, 3, size=(21, 20)).astype(np.int32))
+    det = dict(method="hybrid", n_shelves=90, improve_windows=30, time_limit_s=110, seed=0)
+    timed = dict(method="neighbourhood", n_shelves=90, improve_time_s=0.3, time_limit_s=110, seed=0)
+    idle, idle_timed = repair("warehouse_even", lay, **det), repair("warehouse_even", lay, **timed)
+
+    ticks = itertools.count()
+    start = real_time.perf_counter()
+
+    class SlowClock:
+        @staticmethod
+        def perf_counter():
+            return start + 0.02 * next(ticks)
+
+    monkeypatch.setattr(neighbourhood, "time", SlowClock)
+    loaded, loaded_timed = repair("warehouse_even", lay, **det), repair("warehouse_even", lay, **timed)
+    assert np.array_equal(idle.layout, loaded.layout) and idle.status == loaded.status
+    assert (
+        idle.details["windows"] == loaded.details["windows"]
+        and idle.details["bound"] == loaded.details["bound"]
+    )
+    assert loaded_timed.details["windows"] < idle_timed.details["windows"]  # time stopped it

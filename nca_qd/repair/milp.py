@@ -111,12 +111,21 @@ def solve_window(
     seed: int = 0,
     warm_start: bool = True,
     max_nodes: int | None = None,
+    relaxation: bool = False,
+    iteration_limit: int | None = None,
 ) -> WindowResult:
     """Best layout that equals ``current`` outside ``window`` (bool ``[h, w]``) and satisfies ``rules``.
 
     ``warm_start`` passes ``current`` (with a flow routed along a BFS tree) as the incumbent; the
     caller sets it only when ``current`` is valid. ``max_nodes`` caps HiGHS's branch-and-bound
     nodes: a work limit, unlike ``time_limit``, gives the same answer on a loaded machine.
+
+    ``relaxation`` solves the LP relaxation only, by primal simplex from ``current`` (about 0.2 s
+    at 33x36 from a valid start, against seconds for the MIP's own root): its optimum bounds
+    the distance, and when it is integral it is the MIP's optimum (``optimal``; otherwise
+    ``fractional`` with the bound, and as ``layout`` the LP's largest tile per cell, which need
+    not be valid). ``iteration_limit`` caps its simplex
+    iterations (a work limit: ``timeout`` when reached).
     """
     t0 = time.perf_counter()
     h, w = current.shape
@@ -284,6 +293,11 @@ def solve_window(
     hs.setOptionValue("mip_rel_gap", 0.0)
     # Integer weights: a gap below 1 proves optimality.
     hs.setOptionValue("mip_abs_gap", 0.999)
+    if relaxation:
+        hs.setOptionValue("solve_relaxation", True)
+        hs.setOptionValue("simplex_strategy", 4)  # primal: it starts from the valid layout
+    if iteration_limit is not None:
+        hs.setOptionValue("simplex_iteration_limit", int(iteration_limit))
     hs.addCols(
         n_cols,
         cost,
@@ -319,6 +333,8 @@ def solve_window(
     info = hs.getInfo()
     seconds = time.perf_counter() - t0
     has_solution = info.primal_solution_status == 2  # kSolutionStatusFeasible
+    if relaxation:
+        return _relaxed(hs, status, current, cells, layout_in, rules, n_x, K, integrality, t0)
     bound = distance_bound(info.mip_dual_bound, rules.tie_costs is not None)
     nodes = int(info.mip_node_count)
     if status == highspy.HighsModelStatus.kInfeasible:
@@ -335,6 +351,31 @@ def solve_window(
     p = rules.cell_weights(layout_in)
     distance = float(sum(p[r, c] for r, c in cells if new[r, c] != layout_in[r, c]))
     return WindowResult(label, new, distance, seconds, n, bound, nodes)
+
+
+def _relaxed(hs, status, current, cells, layout_in, rules, n_x, K, integrality, t0) -> WindowResult:
+    """The LP relaxation's outcome: its bound, and its solution when every integer column is
+    integral there (then no integer solution is better)."""
+    n = len(cells)
+    seconds = time.perf_counter() - t0
+    if status == highspy.HighsModelStatus.kInfeasible:
+        return WindowResult("infeasible", None, None, seconds, n)
+    if status != highspy.HighsModelStatus.kOptimal:
+        return WindowResult("timeout", None, None, seconds, n)
+    bound = distance_bound(hs.getInfo().objective_function_value, rules.tie_costs is not None)
+    values = np.asarray(hs.getSolution().col_value)
+    ints = values[integrality.astype(bool)]
+    x = values[:n_x].reshape(n, K)
+    new = current.copy()
+    free = rules.free_tiles
+    for i, (r, c) in enumerate(cells):
+        new[r, c] = free[int(np.argmax(x[i]))]
+    if np.abs(ints - np.round(ints)).max(initial=0.0) > 1e-6:
+        # not a layout: the LP's largest tile per cell, where the next search should look
+        return WindowResult("fractional", new, None, seconds, n, bound)
+    p = rules.cell_weights(layout_in)
+    distance = float(sum(p[r, c] for r, c in cells if new[r, c] != layout_in[r, c]))
+    return WindowResult("optimal", new, distance, seconds, n, distance)
 
 
 def distance_bound(dual_bound: float, tie_costs: bool) -> float | None:

@@ -127,15 +127,17 @@ def repair_neighbourhood(
             # counts: it is infeasible without a solve (search layouts: a near-empty storage
             # area has 1-3 local violations but needs 240 shelves).
             if win.sum() >= bound or whole:
+                # Under a window budget, nodes bound the solve (time only as a safety net)
                 res = solve_window(
                     layout_in,
                     layout_in,
                     win,
                     rules,
-                    time_limit=min(left(), window_time),
+                    time_limit=left() if improve_windows is not None else min(left(), window_time),
                     threads=threads,
                     seed=seed,
                     warm_start=False,
+                    max_nodes=WINDOW_NODES if improve_windows is not None else None,
                 )
                 if res.layout is not None and is_valid(res.layout, rules):
                     candidates.append(res.layout)
@@ -157,18 +159,60 @@ def repair_neighbourhood(
     # 3. Window improvement around the cells that differ.
     t2 = time.perf_counter()
     stop = deadline if improve_windows is not None else min(deadline, t2 + improve_time)
-    max_windows = improve_windows if improve_windows is not None else np.inf
+    best, cost, n_windows = improve(
+        best,
+        layout_in,
+        rules,
+        free,
+        bound=bound,
+        windows=improve_windows,
+        stop=stop,
+        window=window,
+        window_time=window_time,
+        threads=threads,
+        seed=seed,
+    )
+    stages["improve_s"] = time.perf_counter() - t2
+    stages["windows"] = float(n_windows)
+    status = "optimal" if cost <= bound else "feasible"
+    return SearchOutcome(status, best, cost, stages)
+
+
+def improve(
+    best: np.ndarray,
+    layout_in: np.ndarray,
+    rules: Rules,
+    centres: np.ndarray,
+    *,
+    bound: float,
+    windows: int | None,
+    stop: float,
+    window: int,
+    window_time: float,
+    threads: int,
+    seed: int,
+) -> tuple[np.ndarray, float, int]:
+    """Re-solve ``window``-sided squares of the valid ``best`` centred on cells of ``centres``
+    (picked at random from ``seed``), keeping each nearer layout, until the distance meets
+    ``bound``, ``windows`` squares were solved (each bounded by branch-and-bound nodes: the same
+    answer whatever the load) or, without a window count, the clock reaches ``stop``. A square
+    that brings nothing is not visited again; a centre is a cell of ``centres`` where ``best``
+    still differs from ``layout_in``."""
+    free = ~rules.fixed
+    weights = rules.cell_weights(layout_in)
+    cost = weighted_distance(best, layout_in, weights)
+    max_windows = windows if windows is not None else np.inf
     rng = np.random.default_rng(seed)
     done = np.zeros(layout_in.shape, dtype=bool)
     n_windows = 0
     while cost > bound and n_windows < max_windows and time.perf_counter() < stop:
-        todo = np.argwhere((best != layout_in) & free & ~done)
+        todo = np.argwhere(centres & (best != layout_in) & ~done)
         if len(todo) == 0:
             break
         r, c = todo[rng.integers(len(todo))]
         box = _square(layout_in.shape, int(r), int(c), window) & free
         before = weighted_distance(best[box], layout_in[box], weights[box])
-        if improve_windows is not None:  # work limits: the same answer whatever the load
+        if windows is not None:  # work limits: the same answer whatever the load
             budget, nodes = max(0.05, stop - time.perf_counter()), WINDOW_NODES
         else:
             budget, nodes = max(0.05, min(window_time / 4, stop - time.perf_counter())), None
@@ -194,7 +238,4 @@ def repair_neighbourhood(
             cost = weighted_distance(best, layout_in, weights)
         else:
             done |= box
-    stages["improve_s"] = time.perf_counter() - t2
-    stages["windows"] = float(n_windows)
-    status = "optimal" if cost <= bound else "feasible"
-    return SearchOutcome(status, best, cost, stages)
+    return best, cost, n_windows
