@@ -68,3 +68,20 @@ def test_pytree_round_trip_compressed_or_not_and_a_truncated_file_is_one_error(t
     path.write_bytes(path.read_bytes()[: size // 2])
     with pytest.raises(NcaQdError, match="checkpoint does not match"):
         load_pytree(path, tree)
+
+
+def test_atomic_writes_take_the_umask_not_a_private_mode(tmp_path):
+    import os
+
+    from nca_qd.io import atomic_write_text
+
+    old = os.umask(0o022)
+    try:
+        atomic_write_text(tmp_path / "a.txt", "x")
+        os.umask(0o077)
+        atomic_write_text(tmp_path / "b.txt", "y")
+    finally:
+        os.umask(old)
+    assert (tmp_path / "a.txt").stat().st_mode & 0o777 == 0o644
+    assert (tmp_path / "b.txt").stat().st_mode & 0o777 == 0o600
+    assert not list(tmp_path.glob(".*.tmp"))
