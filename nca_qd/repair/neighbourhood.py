@@ -67,6 +67,8 @@ def _square(shape: tuple[int, int], r: int, c: int, side: int) -> np.ndarray:
 
 # Branch-and-bound nodes per improvement window under a window budget (``improve_windows``).
 WINDOW_NODES = 200
+# Largest violation window solved under a window budget (cells).
+WORK_WINDOW_CELLS = 256
 
 
 def repair_neighbourhood(
@@ -118,9 +120,13 @@ def repair_neighbourhood(
     greedy_cost = weighted_distance(greedy, layout_in, weights) if candidates else np.inf
     if viol.any() and greedy_cost > bound and viol.sum() <= max_violation_fraction * free.sum():
         radius = 1
+        # Under a window budget the solves are bounded by nodes, and one node of a large
+        # window can take tens of seconds (a 352-cell window of an even-search layout: 22 s
+        # at its root): such windows are left to the greedy construction.
+        cap = max_window_cells if improve_windows is None else min(max_window_cells, WORK_WINDOW_CELLS)
         while left() > 0:
             win = dilate(viol, radius) & free
-            if win.sum() > max_window_cells:
+            if win.sum() > cap:
                 break
             whole = bool((win == free).all())
             # A window with fewer cells than the count gap (``bound``) cannot fix the tile
