@@ -39,9 +39,62 @@ def compose_config(config_name: str, overrides: Sequence[str]) -> DictConfig:
             cfg = compose(config_name=config_name, overrides=list(overrides))
         OmegaConf.resolve(cfg)
     except (HydraException, OmegaConfBaseException) as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise NcaQdError(f"bad configuration: {first}") from None
+        raise NcaQdError(f"bad configuration: {_explain(config_name, str(exc))}") from None
     return cfg
+
+
+def _explain(config_name: str, message: str) -> str:
+    """Hydra's error in one line: its first line, the options it lists (an unknown domain or
+    algorithm), or for an unknown key the keys of the config nearest to it."""
+    import difflib
+    import re
+
+    lines = [ln.strip() for ln in message.strip().splitlines() if ln.strip()]
+    if not lines:
+        return "invalid configuration"
+    first = lines[0]
+    if "Available options" in message:
+        opts = []
+        for ln in lines[lines.index(next(x for x in lines if x.startswith("Available options"))) + 1 :]:
+            if ln.startswith("Config search path"):
+                break
+            opts.append(ln)
+        return f"{first} (known: {', '.join(opts)})"
+    unknown = re.match(r"Could not override '([^']+)'", first)
+    if unknown:
+        keys = _config_keys(config_name)
+        near = difflib.get_close_matches(unknown.group(1), keys, n=3, cutoff=0.6)
+        hint = f"; did you mean {' or '.join(near)}?" if near else ""
+        return f"no setting {unknown.group(1)!r} in {config_name}.yaml{hint}"
+    return first
+
+
+def _config_keys(config_name: str) -> list[str]:
+    """Every dotted key of the composed default config (for suggestions)."""
+    from hydra import compose, initialize_config_dir
+
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        cfg = OmegaConf.to_container(compose(config_name=config_name), resolve=False)
+
+    def walk(node, prefix: str):
+        if isinstance(node, dict):
+            for k, v in node.items():
+                yield from walk(v, f"{prefix}{k}.")
+        yield prefix.rstrip(".")
+
+    return [k for k in walk(cfg, "") if k]
+
+
+def print_help(module_name: str) -> None:
+    """What ``--help`` shows: the command's docstring, then its settings file with comments."""
+    module = sys.modules.get(module_name)
+    doc = (module.__doc__ or "").strip() if module is not None else ""
+    name = module_name.rsplit(".", 1)[-1]
+    print(doc or f"python -m experiments.{name} key=value ...")
+    conf = CONF_DIR / f"{name}.yaml"
+    if conf.is_file():
+        print(f"\nSettings (key=value on the command line; defaults from experiments/conf/{name}.yaml):\n")
+        print(conf.read_text().rstrip())
 
 
 def merge_overrides(cfg: DictConfig, overrides: Sequence[str]) -> DictConfig:
@@ -89,6 +142,9 @@ def main_guard(body: Callable[[list[str]], int | None], on_interrupt: str = "") 
         # SIGTERM (a cluster scheduler's or a session's end, `kill`) stops a run as Ctrl-C
         # does: the run writes its checkpoint before it exits.
         signal.signal(signal.SIGTERM, _raise_interrupt)
+        if any(a in ("-h", "--help", "help") for a in sys.argv[1:]):
+            print_help(body.__module__)
+            sys.exit(0)
         try:
             code = body(sys.argv[1:])
         except NcaQdError as exc:

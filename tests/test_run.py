@@ -140,8 +140,10 @@ def _cli_here(args, capsys, monkeypatch):
 @pytest.mark.parametrize(
     "args,message",
     [
-        (["domain=nowhere"], "bad configuration"),
-        (["algo=simulated_annealing"], "bad configuration"),
+        (["domain=nowhere"], "(known: manufacturing, maze, maze_entropy, warehouse_even, warehouse_uneven)"),
+        (["algo=simulated_annealing"], "(known: cma_es, cma_mae, dsage, map_elites)"),
+        (["sed=3"], "no setting 'sed' in run.yaml; did you mean seed?"),
+        (["qd.n_eval=150"], "did you mean qd.n_evals"),
         (["qd.n_evals=abc"], "qd.n_evals must be a positive integer"),
         (["qd.n_evals=-5"], "qd.n_evals must be a positive integer"),
         (["domain.size.train=[0,16]"], "domain.size.train must be two integers"),
@@ -163,6 +165,35 @@ def test_bad_input_gets_one_line_and_exit_2(args, message, capsys, monkeypatch):
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: ") and message in lines[0], err
     assert "Traceback" not in err
+
+
+@pytest.mark.parametrize(
+    "command, flag, expect",
+    [
+        ("run", "--help", "n_evals"),
+        ("evaluate", "-h", "select"),
+        ("repair", "--help", "tie_break"),
+        ("simulate", "--help", "agents"),
+        ("dynamics", "-h", "shift_tol"),
+    ],
+)
+def test_help_prints_the_commands_purpose_and_settings(command, flag, expect, capsys, monkeypatch):
+    """--help / -h: the command's docstring and its settings file, exit 0 (Hydra's parser used to
+    answer 'LexerNoViableAltException')."""
+    import importlib
+
+    module = importlib.import_module(f"experiments.{command}")
+    monkeypatch.setattr(sys, "argv", [f"experiments.{command}", flag])
+    previous = signal.getsignal(signal.SIGTERM)
+    try:
+        with pytest.raises(SystemExit) as exc:
+            main_guard(module.main)()
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    out, err = capsys.readouterr()
+    assert exc.value.code == 0 and not err
+    assert f"experiments/conf/{command}.yaml" in out and expect in out
+    assert out.splitlines()[0] == module.__doc__.strip().splitlines()[0]
 
 
 def test_a_real_process_exits_2_with_one_line():
