@@ -85,6 +85,21 @@ def _config_keys(config_name: str) -> list[str]:
     return [k for k in walk(cfg, "") if k]
 
 
+def check_writable(path, what: str) -> None:
+    """Refuse, before any work, an output file that could not be written: its folder missing
+    or read-only, or the path a folder (the result would otherwise be lost after the work)."""
+    import os
+
+    target = Path(str(path))
+    if target.is_dir():
+        raise NcaQdError(f"{what}={target}: is a folder, not a file")
+    parent = target.parent if str(target.parent) else Path(".")
+    if not parent.is_dir():
+        raise NcaQdError(f"{what}={target}: folder {parent} does not exist")
+    if not os.access(parent, os.W_OK):
+        raise NcaQdError(f"{what}={target}: folder {parent} is not writable")
+
+
 def print_help(module_name: str) -> None:
     """What ``--help`` shows: the command's docstring, then its settings file with comments."""
     module = sys.modules.get(module_name)

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.cli import compose_config, main_guard
+from experiments.cli import check_writable, compose_config, main_guard
 from nca_qd.dynamics import Thresholds, classify, summarise
 from nca_qd.errors import NcaQdError
 from nca_qd.io import atomic_write_text
@@ -43,8 +43,8 @@ def main(argv: list[str]) -> int:
     if cfg.top is not None and (not isinstance(cfg.top, int) or cfg.top < 1):
         raise NcaQdError(f"top must be a positive integer or null, got {cfg.top!r}")
     out = Path(cfg.out) if cfg.out else None
-    if out is not None and not out.parent.is_dir():
-        raise NcaQdError(f"out={out}: folder {out.parent} does not exist")
+    if out is not None:
+        check_writable(out, "out")
 
     from nca_qd.domains import make_domain
     from nca_qd.evaluation.layouts import load_run

@@ -18,7 +18,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
-from experiments.cli import compose_config, main_guard
+from experiments.cli import check_writable, compose_config, main_guard
 from nca_qd.domains import domain_class
 from nca_qd.errors import NcaQdError
 from nca_qd.io import load_map
@@ -100,6 +100,7 @@ def main(argv: list[str]) -> int:
             print(path)
         return 0
     if cfg.get("run") and cfg.out:
+        check_writable(cfg.out, "out")
         render_elites(cfg.out, cfg.run, cfg.elites, cfg.size)
         print(cfg.out)
         return 0
@@ -108,6 +109,7 @@ def main(argv: list[str]) -> int:
             "give layout=<file.json> out=<file.png>, run=<run dir> out=<file.png>, "
             "or run=<run dir> pictures=true"
         )
+    check_writable(cfg.out, "out")
     paths = [cfg.layout] + ([cfg.compare] if cfg.compare else [])
     domain = cfg.domain.name if cfg.get("domain") is not None else None
     render_files(cfg.out, paths, domain=domain)

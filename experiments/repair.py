@@ -13,7 +13,7 @@ import json
 import logging
 from pathlib import Path
 
-from experiments.cli import compose_config, main_guard
+from experiments.cli import check_writable, compose_config, main_guard
 from nca_qd.errors import NcaQdError
 from nca_qd.io import MapFile, array_to_rows, load_map, save_map
 from nca_qd.layouts import LAYOUTS, get_layout
@@ -41,6 +41,9 @@ def main(argv: list[str]) -> int:
         raise NcaQdError(f"domain {domain!r} has no repair (repairable: {', '.join(LAYOUTS)})")
     if not cfg.layout or not cfg.out:
         raise NcaQdError("give layout=<in.json> and out=<out.json>")
+    check_writable(cfg.out, "out")
+    if cfg.render:
+        check_writable(cfg.render, "render")
     tiles = tiles_of(domain)
     path = Path(cfg.layout)
     mapfile = load_map(path, tiles)

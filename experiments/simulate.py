@@ -21,7 +21,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
-from experiments.cli import compose_config, main_guard, take_domain
+from experiments.cli import check_writable, compose_config, main_guard, take_domain
 from nca_qd.errors import NcaQdError
 from nca_qd.io import atomic_write_bytes, load_map
 from nca_qd.sim.scenario import Scenario, build_scenario, tiles_for
@@ -46,6 +46,8 @@ class RunSettings:
         threads = None if cfg.threads is None else _int(cfg, "threads", minimum=1)
         self.threads = threads or len(os.sched_getaffinity(0))
         self.record_paths = cfg.paths_out is not None
+        if self.record_paths:
+            check_writable(cfg.paths_out, "paths_out")
         self.rhcr = rhcr_options(cfg)
         self.crowd_mean = screen_crowd_mean(cfg) if cfg.simulator == "screen" else None
 

@@ -69,9 +69,8 @@ def load_archive(run_dir: str | Path, which: str = "result") -> dict[str, Any]:
             f"{path} not found and no {CHECKPOINT_FILE} beside it (has the run finished an iteration yet?)"
         )
     archive, iteration = archive_from_checkpoint(ckpt if ckpt.is_file() else legacy, which)
-    log.info(
-        "%s: no %s yet; using the archive of its checkpoint (iteration %d)", run_dir, path.name, iteration
-    )
+    source = ckpt if ckpt.is_file() else legacy
+    log.info("%s: %s archive read from %s (iteration %d)", run_dir, which, source.name, iteration)
     return archive
 
 

@@ -115,3 +115,31 @@ def test_render_names_a_bad_file(tmp_path, monkeypatch, capsys):
     code = run(render_cli, [f"layout={src}", f"out={tmp_path / 'x.png'}"], monkeypatch)
     err = capsys.readouterr().err
     assert code == 2 and str(src) in err and "'Q'" in err
+
+
+@pytest.mark.parametrize(
+    "out, render, expect",
+    [
+        ("missing/o.json", None, "folder"),
+        ("", None, "is a folder, not a file"),
+        ("o.json", "missing/cmp.png", "render="),
+    ],
+)
+def test_an_unwritable_output_is_refused_before_the_repair(
+    tmp_path, monkeypatch, capsys, out, render, expect
+):
+    """Checked before the work, so that a repair is never computed and then lost."""
+    import nca_qd.repair as repair_module
+
+    src = write(tmp_path, GOOD)
+    calls = []
+    monkeypatch.setattr(
+        repair_cli, "repair", lambda *a, **k: calls.append(1) or repair_module.repair(*a, **k)
+    )
+    argv = ["domain=warehouse_even", f"layout={src}", f"out={tmp_path / out}", "n_shelves=6"]
+    if render:
+        argv.append(f"render={tmp_path / render}")
+    code = run(repair_cli, argv, monkeypatch)
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and expect in err
+    assert not calls
