@@ -143,6 +143,10 @@ def _cli_here(args, capsys, monkeypatch):
         (["domain=nowhere"], "(known: manufacturing, maze, maze_entropy, warehouse_even, warehouse_uneven)"),
         (["algo=simulated_annealing"], "(known: cma_es, cma_mae, dsage, map_elites)"),
         (["sed=3"], "no setting 'sed' in run.yaml; did you mean seed?"),
+        (
+            ["domain=warehouse_even", "domain.size.train=[3,3]"],
+            "domain.size.train=[3, 3]: no valid layout exists (240 tiles of '@' required, room for 9)",
+        ),
         (["qd.n_eval=150"], "did you mean qd.n_evals"),
         (["qd.n_evals=abc"], "qd.n_evals must be a positive integer"),
         (["qd.n_evals=-5"], "qd.n_evals must be a positive integer"),

@@ -27,6 +27,35 @@ class MultiAgentDomain(Domain):
         self.gen_tiles = self.layout.gen_tiles
         self.layout_tiles = self.layout.tiles
         self.palette = self.layout.palette
+        for which in ("train", "eval"):
+            if cfg.get("size") is not None and cfg["size"].get(which) is not None:
+                self._check_possible(cfg, which)
+
+    def _check_possible(self, cfg: Mapping[str, Any], which: str) -> None:
+        """Refuse sizes where no valid layout exists (every repair would fail and a search
+        would run to its end with an empty archive): more tiles required than the map holds."""
+        from nca_qd.errors import NcaQdError
+        from nca_qd.repair import make_rules
+
+        shape = self.assemble(np.zeros(self.gen_shape(which), dtype=np.int32)).shape
+        rep = cfg.get("repair") or {}
+        n_shelves = (rep.get("n_shelves") or {}).get(which)
+        n_agents = int((cfg.get("n_agents") or {}).get(which) or 1)
+        rules = make_rules(self.name, shape, n_shelves=n_shelves, n_agents=n_agents)
+        free = int((~rules.fixed).sum())
+        for rule in rules.counts:
+            fixed_n = (
+                0
+                if rules.fixed_layout is None
+                else int((rules.fixed & np.isin(rules.fixed_layout, list(rule.tiles))).sum())
+            )
+            room = fixed_n + (free if set(rule.tiles) & set(rules.free_tiles) else 0)
+            if rule.value > room:
+                names = "".join(self.layout_tiles[int(t)] for t in rule.tiles)
+                raise NcaQdError(
+                    f"domain.size.{which}={list(self.gen_shape(which))}: no valid layout exists "
+                    f"({rule.value} tiles of {names!r} required, room for {room})"
+                )
 
     @classmethod
     def for_layout(cls, name: str) -> type[MultiAgentDomain]:
