@@ -85,3 +85,13 @@ def test_atomic_writes_take_the_umask_not_a_private_mode(tmp_path):
     assert (tmp_path / "a.txt").stat().st_mode & 0o777 == 0o644
     assert (tmp_path / "b.txt").stat().st_mode & 0o777 == 0o600
     assert not list(tmp_path.glob(".*.tmp"))
+
+
+def test_the_package_says_its_version():
+    import tomllib
+    from pathlib import Path
+
+    import nca_qd
+
+    meta = tomllib.loads((Path(__file__).resolve().parents[1] / "pyproject.toml").read_text())
+    assert nca_qd.__version__ == meta["project"]["version"]
