@@ -38,3 +38,17 @@ def test_the_link_check_sees_a_broken_link(tmp_path: Path) -> None:
     md = tmp_path / "page.md"
     md.write_text("[ok](there.md#part) [web](https://example.org) [gone](missing/file.png) [anchor](#a)")
     assert _broken_links(md) == ["missing/file.png"]
+
+
+def test_the_citation_file_names_the_paper_and_this_version():
+    import tomllib
+
+    import yaml
+
+    root = Path(__file__).resolve().parents[1]
+    cff = yaml.safe_load((root / "CITATION.cff").read_text())
+    version = tomllib.loads((root / "pyproject.toml").read_text())["project"]["version"]
+    assert cff["cff-version"] == "1.2.0" and cff["version"] == version
+    paper = cff["preferred-citation"]
+    assert paper["title"].startswith("Arbitrarily Scalable Environment Generators")
+    assert [a["family-names"] for a in paper["authors"]] == ["Zhang", "Fontaine", "Bhatt", "Nikolaidis", "Li"]
