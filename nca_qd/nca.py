@@ -49,6 +49,7 @@ class NCAGenerator:
         flat, self._unravel = ravel_pytree(template)
         self.n_params = int(flat.shape[0])
         self._generate = jax.jit(self._generate_impl, static_argnames=("n_iters",))
+        self._trajectory = jax.jit(self._trajectory_impl, static_argnames=("n_iters", "extra"))
 
     def unflatten(self, flat: jax.Array):
         """Flat ``[d]`` vector -> Flax params pytree."""
@@ -132,8 +133,6 @@ class NCAGenerator:
         ``n_iters`` (a saturated sigmoid gives 1.0 twice; the argmax then picks by index)."""
         flat_batch = jnp.asarray(flat_batch, dtype=jnp.float32)
         chex.assert_axis_dimension(flat_batch, 1, self.n_params)
-        if not hasattr(self, "_trajectory"):
-            self._trajectory = jax.jit(self._trajectory_impl, static_argnames=("n_iters", "extra"))
         layouts, tied = self._trajectory(
             flat_batch, jnp.asarray(seed, dtype=jnp.int32), n_iters=int(n_iters), extra=int(extra)
         )

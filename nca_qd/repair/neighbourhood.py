@@ -169,7 +169,6 @@ def repair_neighbourhood(
         best,
         layout_in,
         rules,
-        free,
         bound=bound,
         windows=improve_windows,
         stop=stop,
@@ -188,7 +187,6 @@ def improve(
     best: np.ndarray,
     layout_in: np.ndarray,
     rules: Rules,
-    centres: np.ndarray,
     *,
     bound: float,
     windows: int | None,
@@ -198,12 +196,11 @@ def improve(
     threads: int,
     seed: int,
 ) -> tuple[np.ndarray, float, int]:
-    """Re-solve ``window``-sided squares of the valid ``best`` centred on cells of ``centres``
-    (picked at random from ``seed``), keeping each nearer layout, until the distance meets
-    ``bound``, ``windows`` squares were solved (each bounded by branch-and-bound nodes: the same
-    answer whatever the load) or, without a window count, the clock reaches ``stop``. A square
-    that brings nothing is not visited again; a centre is a cell of ``centres`` where ``best``
-    still differs from ``layout_in``."""
+    """Re-solve ``window``-sided squares of the valid ``best`` centred on free cells where it
+    differs from ``layout_in`` (picked at random from ``seed``), keeping each nearer layout,
+    until the distance meets ``bound``, ``windows`` squares were solved (each bounded by
+    branch-and-bound nodes: the same answer whatever the load) or, without a window count, the
+    clock reaches ``stop``. A square that brings nothing is not visited again."""
     free = ~rules.fixed
     weights = rules.cell_weights(layout_in)
     cost = weighted_distance(best, layout_in, weights)
@@ -212,7 +209,7 @@ def improve(
     done = np.zeros(layout_in.shape, dtype=bool)
     n_windows = 0
     while cost > bound and n_windows < max_windows and time.perf_counter() < stop:
-        todo = np.argwhere(centres & (best != layout_in) & ~done)
+        todo = np.argwhere((best != layout_in) & free & ~done)
         if len(todo) == 0:
             break
         r, c = todo[rng.integers(len(todo))]
