@@ -10,7 +10,9 @@ iteration counts, their repairs (default and near-optimal) and exact RHCR on eac
 
 ``layouts``: the best generator at S at each of ``--iters`` and the next ``--top`` - 1 at C_eval,
 generated at S_eval, repaired with the run's S_eval options (``key__unrepaired`` /
-``key__repaired``), with the NCA's and the repair's tile counts printed. ``polish``: the repair
+``key__repaired``), with the NCA's and the repair's tile counts printed. ``phase``: the best
+``--top`` at S scored as the search scores them (repair at S, N_e exact runs of T = 1,000) at
+C and at C + 1 .. C + ``--extra``: how the archive would rank them by the lower score. ``polish``: the repair
 with the whole-map MILP warm-started from the default result for ``--budget`` seconds (one
 layout per process), printing the proven bound and gap (``key__polished``). ``exact``: RHCR at
 T = 5,000 on each layout, one JSON line per layout (appended to ``--jsonl``).
@@ -49,6 +51,8 @@ def layouts(args) -> None:
     genotypes = np.asarray(archive["genotypes"])
     c_eval = dom.nca_iters("eval")
     jobs = [(int(cells[0]), int(c)) for c in args.iters.split(",")] + [(int(c), c_eval) for c in cells[1:]]
+    if args.cells:  # these cells at C_eval instead
+        jobs = [(int(c), c_eval) for c in args.cells.split(",")]
     opts = repair_options(d, "eval")
     tiles = tiles_of(d["name"])
     out = {}
@@ -69,6 +73,41 @@ def layouts(args) -> None:
             flush=True,
         )
     np.savez_compressed(args.out, **out)
+
+
+def phase(args) -> None:
+    from nca_qd.pipeline import generate
+    from nca_qd.repair import repair, tiles_of
+    from nca_qd.run_dir import select_elites
+    from nca_qd.scoring.tasks import repair_options
+    from nca_qd.sim.rhcr import simulate_many
+
+    d, dom, gen, archive = _load(args.run_dir)
+    objective = np.asarray(archive["objective"])
+    cells = select_elites(objective, args.top)
+    genotypes = np.asarray(archive["genotypes"])
+    opts = repair_options(d, "train")
+    tiles, c0 = tiles_of(d["name"]), dom.nca_iters("train")
+    sim = d["simulation"]
+    n_agents, T, n_runs = int(d["n_agents"]["train"]), int(sim["T"]), int(sim["n_runs"])
+    for cell in cells:
+        scores = []
+        for n_iters in range(c0, c0 + args.extra + 1):
+            region = generate(dom, gen, genotypes[cell][None], which="train", n_iters=n_iters)[0]
+            res = repair(d["name"], np.asarray(dom.assemble(region), dtype=np.int32), **opts)
+            if res.layout is None:
+                scores.append(float("nan"))
+                continue
+            rows = ["".join(tiles[i] for i in r) for r in res.layout]
+            runs = simulate_many(rows, d["name"], n_agents, T, list(range(n_runs)), threads=args.threads)
+            scores.append(float(np.mean([r.throughput for r in runs])))
+        line = {"cell": int(cell), "archive": round(float(objective[cell]), 3)}
+        line.update({f"C{c0 + i}": round(v, 3) for i, v in enumerate(scores)})
+        line["lowest"] = round(float(np.nanmin(scores)), 3)
+        print(json.dumps(line), flush=True)
+        if args.jsonl:
+            with open(args.jsonl, "a") as f:
+                f.write(json.dumps(line) + "\n")
 
 
 def _polish_one(job):
@@ -150,6 +189,13 @@ def main(argv: list[str] | None = None) -> None:
     a.add_argument("--out", required=True)
     a.add_argument("--top", type=int, default=10)
     a.add_argument("--iters", default="200,201,300,400")
+    a.add_argument("--cells", default=None, help="comma-separated cells, each at C_eval")
+    p = sub.add_parser("phase")
+    p.add_argument("--run-dir", required=True)
+    p.add_argument("--top", type=int, default=20)
+    p.add_argument("--extra", type=int, default=1)
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--jsonl", default=None)
     b = sub.add_parser("polish")
     b.add_argument("--npz", required=True)
     b.add_argument("--domain", required=True)
@@ -168,7 +214,7 @@ def main(argv: list[str] | None = None) -> None:
     c.add_argument("--keys", default=None)
     c.add_argument("--jsonl", default=None)
     args = ap.parse_args(argv)
-    {"layouts": layouts, "polish": polish, "exact": exact}[args.part](args)
+    {"layouts": layouts, "phase": phase, "polish": polish, "exact": exact}[args.part](args)
 
 
 if __name__ == "__main__":
