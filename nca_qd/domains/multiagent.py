@@ -36,27 +36,20 @@ class MultiAgentDomain(Domain):
         """Refuse sizes where no valid layout exists (every repair would fail and a search
         would run to its end with an empty archive): more tiles required than the map holds."""
         from nca_qd.errors import NcaQdError
-        from nca_qd.repair import make_rules
+        from nca_qd.repair import count_shortfall, make_rules
 
         shape = self.assemble(np.zeros(self.gen_shape(which), dtype=np.int32)).shape
         rep = cfg.get("repair") or {}
         n_shelves = (rep.get("n_shelves") or {}).get(which)
         n_agents = int((cfg.get("n_agents") or {}).get(which) or 1)
-        rules = make_rules(self.name, shape, n_shelves=n_shelves, n_agents=n_agents)
-        free = int((~rules.fixed).sum())
-        for rule in rules.counts:
-            fixed_n = (
-                0
-                if rules.fixed_layout is None
-                else int((rules.fixed & np.isin(rules.fixed_layout, list(rule.tiles))).sum())
+        short = count_shortfall(make_rules(self.name, shape, n_shelves=n_shelves, n_agents=n_agents))
+        if short is not None:
+            rule, room = short
+            names = "".join(self.layout_tiles[int(t)] for t in rule.tiles)
+            raise NcaQdError(
+                f"domain.size.{which}={list(self.gen_shape(which))}: no valid layout exists "
+                f"({rule.value} tiles of {names!r} required, room for {room})"
             )
-            room = fixed_n + (free if set(rule.tiles) & set(rules.free_tiles) else 0)
-            if rule.value > room:
-                names = "".join(self.layout_tiles[int(t)] for t in rule.tiles)
-                raise NcaQdError(
-                    f"domain.size.{which}={list(self.gen_shape(which))}: no valid layout exists "
-                    f"({rule.value} tiles of {names!r} required, room for {room})"
-                )
 
     @classmethod
     def for_layout(cls, name: str) -> type[MultiAgentDomain]:

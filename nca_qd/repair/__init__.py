@@ -135,7 +135,7 @@ def repair(
     # ``count_bound``: each changed cell moves a tile count by at most one (cheap, proven, weak);
     # ``milp_bound``: the whole-map MILP's dual bound where it ran (hybrid, full).
     details: dict[str, Any] = {"count_bound": lower_bound(layout, rules)}
-    if _count_impossible(rules):
+    if count_shortfall(rules) is not None:
         status, best = "infeasible", None
     elif method in ("neighbourhood", "hybrid"):
         out = repair_neighbourhood(
@@ -225,18 +225,20 @@ def resolve_improve_time(value: float | str | None, n_free: int) -> float:
         raise NcaQdError(f"improve_time_s must be a number or 'auto', got {value!r}") from None
 
 
-def _count_impossible(rules: Rules) -> bool:
-    """A count rule no layout can meet: more tiles required than free and fixed cells can hold."""
+def count_shortfall(rules: Rules) -> tuple[Any, int] | None:
+    """A count rule no layout can meet, and the room the map has for its tiles (fixed cells of
+    those tiles plus the free cells): more tiles required than that; None if every rule fits."""
+    free_n = int((~rules.fixed).sum())
     for rule in rules.counts:
         fixed_n = (
             0
             if rules.fixed_layout is None
             else int((rules.fixed & np.isin(rules.fixed_layout, list(rule.tiles))).sum())
         )
-        free_n = int((~rules.fixed).sum()) if set(rule.tiles) & set(rules.free_tiles) else 0
-        if rule.value > fixed_n + free_n:
-            return True
-    return False
+        room = fixed_n + (free_n if set(rule.tiles) & set(rules.free_tiles) else 0)
+        if rule.value > room:
+            return rule, room
+    return None
 
 
 def _polish(layout, start, rules, time_limit, threads, seed, details):
