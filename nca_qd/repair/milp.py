@@ -342,15 +342,22 @@ def solve_window(
     if not has_solution:
         return WindowResult("timeout", None, None, seconds, n, bound, nodes)
     values = np.asarray(hs.getSolution().col_value)
-    x = values[:n_x].reshape(n, K)
+    new, distance = _layout_of(values, current, cells, layout_in, rules, n_x, K)
+    label = "optimal" if status == highspy.HighsModelStatus.kOptimal else "feasible"
+    return WindowResult(label, new, distance, seconds, n, bound, nodes)
+
+
+def _layout_of(values, current, cells, layout_in, rules, n_x, K) -> tuple[np.ndarray, float]:
+    """``current`` with each window cell set to its largest tile column in ``values``, and the
+    window's weighted Hamming distance to ``layout_in`` (the solver's objective less any tie
+    costs)."""
+    x = values[:n_x].reshape(len(cells), K)
     new = current.copy()
+    free = rules.free_tiles
     for i, (r, c) in enumerate(cells):
         new[r, c] = free[int(np.argmax(x[i]))]
-    label = "optimal" if status == highspy.HighsModelStatus.kOptimal else "feasible"
-    # The window's weighted Hamming distance (the solver's objective less any tie costs).
     p = rules.cell_weights(layout_in)
-    distance = float(sum(p[r, c] for r, c in cells if new[r, c] != layout_in[r, c]))
-    return WindowResult(label, new, distance, seconds, n, bound, nodes)
+    return new, float(sum(p[r, c] for r, c in cells if new[r, c] != layout_in[r, c]))
 
 
 def _relaxed(hs, status, current, cells, layout_in, rules, n_x, K, integrality, t0) -> WindowResult:
@@ -365,16 +372,10 @@ def _relaxed(hs, status, current, cells, layout_in, rules, n_x, K, integrality, 
     bound = distance_bound(hs.getInfo().objective_function_value, rules.tie_costs is not None)
     values = np.asarray(hs.getSolution().col_value)
     ints = values[integrality.astype(bool)]
-    x = values[:n_x].reshape(n, K)
-    new = current.copy()
-    free = rules.free_tiles
-    for i, (r, c) in enumerate(cells):
-        new[r, c] = free[int(np.argmax(x[i]))]
+    new, distance = _layout_of(values, current, cells, layout_in, rules, n_x, K)
     if np.abs(ints - np.round(ints)).max(initial=0.0) > 1e-6:
         # not a layout: the LP's largest tile per cell, where the next search should look
         return WindowResult("fractional", new, None, seconds, n, bound)
-    p = rules.cell_weights(layout_in)
-    distance = float(sum(p[r, c] for r, c in cells if new[r, c] != layout_in[r, c]))
     return WindowResult("optimal", new, distance, seconds, n, distance)
 
 
