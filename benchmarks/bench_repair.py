@@ -10,6 +10,14 @@
 (d) the cost of not solving one monolithic MILP: the first ``n_full`` inputs of (a), and (b),
     repaired with ``method=full`` (time limit ``--full-limit``), Hamming compared.
 Prints one table; all repairs single-threaded.
+
+    .venv/bin/python -m benchmarks.bench_repair --elites 30 [--runs results/warehouse_even_a5,...]
+
+instead repairs the NCA layouts (at S, C = 50) of ``--elites`` elites of each shipped search
+(drawn with ``--seed``) with the domain's repair settings at S under time limits
+(``improve_windows: null``, as the shipped searches ran) and under work limits (the default
+from 2026-11-28: LP relaxation and its exact rounding; ``--windows N``: with N windows after it): per run and mode the median / mean / max
+seconds, how many are proven optimal or within 1 % of the proven bound, and the total distance.
 """
 
 from __future__ import annotations
@@ -68,6 +76,45 @@ def run_set(label: str, domain: str, layouts, rows: list, **opts) -> list:
     return results
 
 
+RUNS = "results/warehouse_even_a5,results/warehouse_uneven_a5"
+
+
+def elites(runs: str, n: int, seed: int, windows: int | None = None) -> None:
+    """Time-limited against work-limited repair on ``n`` elites of each run (module docstring)."""
+    from experiments.cli import compose_config
+    from nca_qd.domains import make_domain
+    from nca_qd.evaluation.layouts import load_run
+    from nca_qd.pipeline import generate, make_generator
+    from nca_qd.scoring.tasks import repair_options
+
+    print("run | mode | n | median s | mean s | max s | proven optimal | within 1 % | distance")
+    for run in runs.split(","):
+        cfg, archive = load_run(run)
+        dom = make_domain(cfg["domain"])
+        gen = make_generator(dom)
+        work = repair_options(compose_config("run", [f"domain={cfg['domain']['name']}"]).domain, "train")
+        if windows is not None:  # work limits with this window budget
+            work = {**work, "improve_windows": windows}
+        timed = {**work, "improve_windows": None}  # the time limits of the shipped searches
+        filled = np.flatnonzero(np.isfinite(np.asarray(archive["objective"])))
+        cells = np.random.default_rng(seed).choice(filled, size=min(n, len(filled)), replace=False)
+        genotypes = np.asarray(archive["genotypes"])
+        out: dict[str, list] = {"time": [], "work": []}
+        for cell in cells:
+            lay = np.asarray(dom.assemble(generate(dom, gen, genotypes[cell][None], which="train")[0]), np.int32)
+            for mode, opts in (("time", timed), ("work", work)):
+                out[mode].append(repair(cfg["domain"]["name"], lay, **opts))
+        for mode, res in out.items():
+            secs = [r.seconds for r in res]
+            near = sum(r.objective is not None and r.objective - r.details["bound"] <= 0.01 * r.objective for r in res)
+            print(
+                f"{run} | {mode} | {len(res)} | {statistics.median(secs):.2f} | {statistics.fmean(secs):.2f} | "
+                f"{max(secs):.2f} | {sum(r.status == 'optimal' for r in res)} | {near} | "
+                f"{sum(r.objective or 0 for r in res):.0f}",
+                flush=True,
+            )
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n-small", type=int, default=50)
@@ -75,7 +122,13 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--n-full", type=int, default=5)
     ap.add_argument("--full-limit", type=float, default=20.0)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--elites", type=int, default=0, help="repair this many elites of each --runs instead")
+    ap.add_argument("--runs", default=RUNS)
+    ap.add_argument("--windows", type=int, default=None, help="(--elites) the work mode's window budget")
     args = ap.parse_args([] if argv is None else argv)
+    if args.elites:
+        elites(args.runs, args.elites, args.seed, args.windows)
+        return
     rows: list = []
     compare: list = []
     t0 = time.perf_counter()

@@ -107,9 +107,10 @@ def test_hybrid_is_valid_never_worse_than_its_start_and_optimal_with_time(cells)
     assert full.status == "optimal" and hy.status == "optimal"
     assert hy.objective == full.objective <= nb.objective
     # Under work limits (improve_windows: the same repair whatever the load) hybrid is the
-    # neighbourhood repair, then the whole map's LP relaxation (no MILP: its only budget would
-    # be time): never farther than the neighbourhood, its bound at most the proven optimum,
-    # "optimal" only when it meets that bound, and the same layout on every call.
+    # neighbourhood repair, then the whole map's LP relaxation and its exact rounding (no
+    # MILP over the whole map: its only budget would be time): never farther than the
+    # neighbourhood, its bound at most the proven optimum, "optimal" only when it meets that
+    # bound, and the same layout on every call.
     det = dict(n_shelves=6, time_limit_s=60, improve_windows=1, seed=0)
     a = repair("warehouse_even", lay, method="hybrid", **det)
     b = repair("warehouse_even", lay, method="neighbourhood", **det)
@@ -259,7 +260,7 @@ def test_unknown_tie_break_is_refused():
 
 
 def test_work_limits_give_the_same_repair_on_a_slow_clock(monkeypatch):
-    """improve_windows bounds the repair by work: a clock that runs 20 ms per reading (a loaded
+    """improve_windows bounds the repair by work: a clock that runs 100 ms per reading (a loaded
     machine, to the code) changes nothing; the time-bounded default stops early on it."""
     import itertools
     import time as real_time
@@ -278,7 +279,7 @@ def test_work_limits_give_the_same_repair_on_a_slow_clock(monkeypatch):
     class SlowClock:
         @staticmethod
         def perf_counter():
-            return start + 0.02 * next(ticks)
+            return start + 0.1 * next(ticks)
 
     monkeypatch.setattr(neighbourhood, "time", SlowClock)
     loaded, loaded_timed = repair("warehouse_even", lay, **det), repair("warehouse_even", lay, **timed)
@@ -288,3 +289,57 @@ def test_work_limits_give_the_same_repair_on_a_slow_clock(monkeypatch):
         and idle.details["bound"] == loaded.details["bound"]
     )
     assert loaded_timed.details["windows"] < idle_timed.details["windows"]  # time stopped it
+
+
+def _paper_unrepaired():
+    return load_map(MAPS / "warehouse/paper_cma-mae_a5_even_33x36_unrepaired.json").to_array(wh.TILES)
+
+
+@pytest.mark.skipif(not MAPS.is_dir(), reason="shared reference maps not present")
+def test_lp_rounding_keeps_the_lps_integral_cells_and_is_valid_and_bounded():
+    """The rounding of a fractional LP solution: a valid layout (independent validator) that
+    equals the LP's tiles away from its fractional cells (it widens by at most two cells),
+    never nearer than the LP's bound."""
+    import dataclasses
+
+    from nca_qd.repair import tie_costs
+    from nca_qd.repair.heuristic import greedy_layout
+    from nca_qd.repair.milp import solve_window
+    from nca_qd.repair.neighbourhood import weighted_distance
+    from nca_qd.repair.rounding import round_relaxation
+
+    lay = _paper_unrepaired()
+    rules = make_rules("warehouse_even", lay.shape)
+    rng = np.random.default_rng(5)  # 6 % of the storage cells redrawn: this LP is fractional
+    free = np.argwhere(~rules.fixed)
+    for r, c in free[rng.choice(len(free), size=int(0.06 * len(free)), replace=False)]:
+        lay[r, c] = rng.integers(0, 3)
+    rules = dataclasses.replace(rules, tie_costs=tie_costs(lay, rules, 0))
+    start = greedy_layout(lay, rules, wh.Warehouse.construction, 200)
+    assert check(start, rules) is None
+    lp = solve_window(start, lay, ~rules.fixed, rules, relaxation=True, warm_start=True)
+    assert lp.status == "fractional" and lp.fractional.any() and lp.iterations > 0
+    rounded, cells = round_relaxation(lp, lay, rules)
+    assert rounded is not None and check(rounded, rules) is None
+    assert cells >= int(lp.fractional.sum())
+    far = ~dilate_mask(lp.fractional, 2)
+    assert np.array_equal(rounded[far], lp.layout[far])
+    distance = weighted_distance(rounded, lay, rules.cell_weights(lay))
+    assert lp.bound <= distance <= weighted_distance(start, lay, rules.cell_weights(lay))
+
+
+def dilate_mask(mask, radius):
+    from nca_qd.layouts.rules import dilate
+
+    return dilate(mask, radius)
+
+
+@pytest.mark.skipif(not MAPS.is_dir(), reason="shared reference maps not present")
+def test_work_limited_hybrid_proves_the_papers_repair_optimal():
+    """The search's repair at S (work limits): the paper's unrepaired layout gets the 32 tile
+    changes of the paper's CPLEX repair, proven optimal by the LP's bound."""
+    lay = _paper_unrepaired()
+    res = repair("warehouse_even", lay, method="hybrid", improve_windows=10, tie_break="random")
+    assert_result_ok(res, "warehouse_even", lay)
+    assert res.status == "optimal" and res.hamming == 32
+    assert res.details["bound"] == res.objective and res.details["gap"] == 0.0

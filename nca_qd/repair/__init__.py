@@ -14,8 +14,12 @@
   result was already optimal) and costs at most ``milp_time_s`` on the rest; the repair's
   distance drives alpha * Delta, so it matters there.
   With ``improve_windows`` (work limits instead of time, so that the result does not depend on
-  the machine's load) hybrid is the neighbourhood repair alone: the MILP's time is not a work
-  limit.
+  the machine's load) hybrid runs no MILP over the whole map (its root has no work limit):
+  the neighbourhood's greedy and violation windows, then the whole map's LP relaxation
+  (iteration-limited) and its exact rounding (:mod:`.rounding`: the MILP over the cells the LP
+  leaves fractional, node-limited), then at most ``improve_windows`` node-limited windows while
+  the distance is above the LP's bound. At S this proves most layouts optimal in a fraction of
+  a second (docs/benchmarks.md).
 
 Ties: many valid layouts are often equally near (a generator that leaves every shelf to the
 repair has thousands). ``tie_break="none"`` takes the one the solvers' own order reaches first:
@@ -46,7 +50,8 @@ from nca_qd.layouts import get_layout
 from nca_qd.layouts.rules import Rules
 from nca_qd.repair.heuristic import greedy_layout
 from nca_qd.repair.milp import solve_window
-from nca_qd.repair.neighbourhood import lower_bound, repair_neighbourhood, weighted_distance
+from nca_qd.repair.neighbourhood import improve, lower_bound, repair_neighbourhood, weighted_distance
+from nca_qd.repair.rounding import round_relaxation
 from nca_qd.repair.validator import check, is_valid
 
 METHODS = ("neighbourhood", "full", "hybrid")
@@ -138,13 +143,16 @@ def repair(
     if count_shortfall(rules) is not None:
         status, best = "infeasible", None
     elif method in ("neighbourhood", "hybrid"):
+        # Under work limits hybrid spends its window budget after the LP (below), where the
+        # LP's bound can stop it early.
+        work_hybrid = method == "hybrid" and improve_windows is not None
         out = repair_neighbourhood(
             layout,
             rules,
             greedy,
             time_limit=time_limit_s,
             improve_time=improve_time_s,
-            improve_windows=improve_windows,
+            improve_windows=0 if work_hybrid else improve_windows,
             window=window,
             window_time=window_time_s,
             max_window_cells=max_window_cells,
@@ -157,16 +165,20 @@ def repair(
         # The MILP has no work limit that bounds its root (a far-from-valid 33x36 layout
         # spends > 100 s there even with 10 nodes), so under work limits (improve_windows:
         # the same answer whatever the load) hybrid solves the whole map's LP relaxation from
-        # the neighbourhood's layout instead (primal simplex, iteration-limited): its bound
-        # proves the layout optimal or says how far it may be, and an integral LP optimum is
-        # the optimum itself.
-        if method == "hybrid" and status == "feasible" and improve_windows is None:
+        # the neighbourhood's layout instead (primal simplex, iteration-limited) and rounds it
+        # exactly (:mod:`.rounding`): its bound proves the layout optimal or says how far it
+        # may be, and the window budget goes to what is left of the gap.
+        if method == "hybrid" and status == "feasible" and not work_hybrid:
             budget = min(float(milp_time_s), time_limit_s - (time.perf_counter() - t0))
             if budget > 0:
                 status, best = _polish(layout, best, rules, budget, threads, seed, details)
-        elif method == "hybrid" and status == "feasible":
+        elif work_hybrid and status == "feasible":
             left = time_limit_s - (time.perf_counter() - t0)
             status, best = _relax(layout, best, rules, left, threads, seed, details)
+            if status == "feasible" and improve_windows:
+                status, best = _improve_to_bound(
+                    layout, best, rules, improve_windows, t0 + time_limit_s, window, window_time_s, threads, seed, details
+                )
     else:
         status, best = _full(layout, rules, greedy, time_limit_s, threads, seed, details)
     if best is not None:
@@ -269,9 +281,8 @@ LP_ITERATIONS = 200_000
 
 def _relax(layout, start, rules, time_limit, threads, seed, details):
     """The whole map's LP relaxation from the valid ``start``: ``optimal`` with its integral
-    optimum or with ``start`` when the bound meets it; ``feasible`` with ``start`` otherwise.
-    (Improvement squares centred where ``start`` differs from a fractional LP solution closed
-    none of the remaining gaps on 30 uneven-search layouts, so there are none.)"""
+    optimum, or with ``start`` or the LP's exact rounding (:mod:`.rounding`) when the bound
+    meets it; otherwise ``feasible`` with the nearer of those two."""
     weights = rules.cell_weights(layout)
     res = solve_window(
         start,
@@ -287,15 +298,46 @@ def _relax(layout, start, rules, time_limit, threads, seed, details):
     )
     details["lp_s"] = res.seconds
     details["lp_status"] = res.status
+    details["lp_iterations"] = res.iterations
     if res.bound is not None:
         details["milp_bound"] = res.bound
     cost = weighted_distance(start, layout, weights)
     if res.status == "optimal" and res.layout is not None and is_valid(res.layout, rules):
         if weighted_distance(res.layout, layout, weights) <= cost:
             return "optimal", res.layout
+    if res.status == "fractional":
+        t = time.perf_counter()
+        rounded, cells = round_relaxation(res, layout, rules, threads=threads, seed=seed)
+        details["rounding_s"] = time.perf_counter() - t
+        details["rounding_cells"] = cells
+        if rounded is not None and weighted_distance(rounded, layout, weights) < cost:
+            details["rounding_gain"] = cost - weighted_distance(rounded, layout, weights)
+            start, cost = rounded, weighted_distance(rounded, layout, weights)
     if res.bound is not None and cost <= res.bound:
         return "optimal", start
     return "feasible", start
+
+
+def _improve_to_bound(layout, start, rules, windows, deadline, window, window_time, threads, seed, details):
+    """At most ``windows`` node-bounded improvement windows (:func:`.neighbourhood.improve`),
+    stopping once the distance meets the best proven bound."""
+    bound = max(float(details["count_bound"]), float(details.get("milp_bound") or 0.0))
+    t = time.perf_counter()
+    best, cost, n = improve(
+        start,
+        layout,
+        rules,
+        bound=bound,
+        windows=windows,
+        stop=deadline,
+        window=window,
+        window_time=window_time,
+        threads=threads,
+        seed=seed,
+    )
+    details["improve_s"] = details.get("improve_s", 0.0) + time.perf_counter() - t
+    details["windows"] = float(n)
+    return ("optimal" if cost <= bound else "feasible"), best
 
 
 def _full(layout, rules, greedy, time_limit, threads, seed, details):

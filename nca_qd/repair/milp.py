@@ -71,6 +71,9 @@ class WindowResult:
     bound: proven lower bound on that distance (HiGHS's dual bound, less any tie costs, rounded
         up to the integer distances); None when the solver proved nothing.
     nodes: branch-and-bound nodes HiGHS explored.
+    fractional: (LP relaxation, status ``fractional``) bool ``[h, w]``, the window cells whose
+        tile is fractional in the LP's solution.
+    iterations: (LP relaxation) simplex iterations, the LP's work.
     """
 
     status: str
@@ -80,6 +83,8 @@ class WindowResult:
     n_cells: int
     bound: float | None = None
     nodes: int = 0
+    fractional: np.ndarray | None = None
+    iterations: int = 0
 
 
 class _Rows:
@@ -113,6 +118,7 @@ def solve_window(
     max_nodes: int | None = None,
     relaxation: bool = False,
     iteration_limit: int | None = None,
+    check_limit: int | None = None,
 ) -> WindowResult:
     """Best layout that equals ``current`` outside ``window`` (bool ``[h, w]``) and satisfies ``rules``.
 
@@ -126,6 +132,12 @@ def solve_window(
     ``fractional`` with the bound, and as ``layout`` the LP's largest tile per cell, which need
     not be valid). ``iteration_limit`` caps its simplex
     iterations (a work limit: ``timeout`` when reached).
+
+    ``check_limit`` stops the MIP after that many of HiGHS's interrupt checks (its callbacks
+    between the LPs of the root's cut rounds and between nodes): a work limit where the node
+    count is none, at the root, whose cut rounds took 13 s on a 302-cell window with no
+    solution in sight. The checks come at the same points of the same search on every
+    machine, so the result does not depend on the load.
     """
     t0 = time.perf_counter()
     h, w = current.shape
@@ -290,6 +302,8 @@ def solve_window(
     hs.setOptionValue("random_seed", int(seed))
     if max_nodes is not None:
         hs.setOptionValue("mip_max_nodes", int(max_nodes))
+    if check_limit is not None:
+        _stop_after_checks(hs, int(check_limit))
     hs.setOptionValue("mip_rel_gap", 0.0)
     # Integer weights: a gap below 1 proves optimality.
     hs.setOptionValue("mip_abs_gap", 0.999)
@@ -347,6 +361,18 @@ def solve_window(
     return WindowResult(label, new, distance, seconds, n, bound, nodes)
 
 
+def _stop_after_checks(hs: highspy.Highs, limit: int) -> None:
+    """Interrupt the MIP at its ``limit``-th interrupt check."""
+    checks = [0]
+
+    def on_check(event, *_):
+        checks[0] += 1
+        if checks[0] >= limit:
+            event.user_interrupt = True
+
+    hs.cbMipInterrupt.subscribe(on_check)
+
+
 def _layout_of(values, current, cells, layout_in, rules, n_x, K) -> tuple[np.ndarray, float]:
     """``current`` with each window cell set to its largest tile column in ``values``, and the
     window's weighted Hamming distance to ``layout_in`` (the solver's objective less any tie
@@ -365,18 +391,23 @@ def _relaxed(hs, status, current, cells, layout_in, rules, n_x, K, integrality, 
     integral there (then no integer solution is better)."""
     n = len(cells)
     seconds = time.perf_counter() - t0
+    its = int(hs.getInfo().simplex_iteration_count)
     if status == highspy.HighsModelStatus.kInfeasible:
-        return WindowResult("infeasible", None, None, seconds, n)
+        return WindowResult("infeasible", None, None, seconds, n, iterations=its)
     if status != highspy.HighsModelStatus.kOptimal:
-        return WindowResult("timeout", None, None, seconds, n)
+        return WindowResult("timeout", None, None, seconds, n, iterations=its)
     bound = distance_bound(hs.getInfo().objective_function_value, rules.tie_costs is not None)
     values = np.asarray(hs.getSolution().col_value)
     ints = values[integrality.astype(bool)]
     new, distance = _layout_of(values, current, cells, layout_in, rules, n_x, K)
     if np.abs(ints - np.round(ints)).max(initial=0.0) > 1e-6:
         # not a layout: the LP's largest tile per cell, where the next search should look
-        return WindowResult("fractional", new, None, seconds, n, bound)
-    return WindowResult("optimal", new, distance, seconds, n, distance)
+        x = values[:n_x].reshape(n, K)
+        frac = np.zeros(current.shape, dtype=bool)
+        for i in np.flatnonzero(np.abs(x - np.round(x)).max(axis=1) > 1e-6):
+            frac[cells[i]] = True
+        return WindowResult("fractional", new, None, seconds, n, bound, fractional=frac, iterations=its)
+    return WindowResult("optimal", new, distance, seconds, n, distance, iterations=its)
 
 
 def distance_bound(dual_bound: float, tie_costs: bool) -> float | None:
