@@ -1,0 +1,101 @@
+"""Export a layout for other multi-agent path finding tools (MovingAI, League of Robot Runners).
+
+    python -m experiments.export layout=map.json format=movingai out=exports/
+    python -m experiments.export run=results/warehouse_even_a5 rows=101 cols=102 format=lorr out=exports/
+
+Writes the format's files into ``out`` (:mod:`nca_qd.export` describes them) and prints one JSON
+line naming them. From a run, the generator of ``cell`` grows a layout at ``rows`` x ``cols``
+(the whole map) and, with ``repair=true``, the domain's repair makes it valid. Bad input: one
+line on stderr and exit 2.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+from experiments.cli import compose_config, main_guard
+from nca_qd.errors import NcaQdError
+from nca_qd.io import atomic_write_text, load_map
+
+
+def _domain_of(tiles_used: set[str], given: str | None) -> str:
+    from nca_qd.layouts import LAYOUTS
+
+    if given:
+        if given not in LAYOUTS:
+            raise NcaQdError(f"domain {given!r} cannot be exported (known: {', '.join(LAYOUTS)})")
+        return given
+    fits = [n for n, kind in LAYOUTS.items() if tiles_used <= set(kind.tiles)]
+    if not fits:
+        raise NcaQdError(f"no domain has the tiles {''.join(sorted(tiles_used))!r}; give domain=<name>")
+    return fits[0]
+
+
+def _from_file(cfg) -> tuple[list[str], str, str]:
+    path = Path(cfg.layout)
+    mapfile = load_map(path)
+    domain = _domain_of(set("".join(mapfile.rows)), cfg.domain)
+    from nca_qd.layouts import get_layout
+
+    load_map(path, get_layout(domain).tiles)  # names the file and a character that does not fit
+    return list(mapfile.rows), domain, cfg.name or path.stem
+
+
+def _from_run(cfg) -> tuple[list[str], str, str]:
+    from nca_qd.api import load_generator
+
+    g = load_generator(cfg.run, cfg.cell)
+    if g.domain.name not in ("warehouse_even", "warehouse_uneven", "manufacturing"):
+        raise NcaQdError(f"{cfg.run} is a {g.domain.name} run: only multi-agent layouts are exported")
+    rows, cols = (cfg.rows, cfg.cols) if cfg.rows is not None or cfg.cols is not None else g.full_shape("train")
+    layout = g.layout(rows, cols, repair=bool(cfg.repair), n_shelves=cfg.n_shelves)
+    name = cfg.name or f"{Path(str(cfg.run)).name}_c{g.cell}_{layout.shape[0]}x{layout.shape[1]}"
+    return g.rows(layout), g.domain.name, name
+
+
+def _default_agents(domain: str, shape: tuple[int, int]) -> int:
+    """The domain's agent count at the nearer (by area) of its training and evaluation sizes."""
+    from experiments.cli import compose_config as compose
+
+    d = compose("run", [f"domain={domain}"]).domain
+    from nca_qd.layouts import get_layout
+
+    kind = get_layout(domain)
+    area = shape[0] * shape[1]
+    sizes = {w: kind.full_shape(tuple(d.size[w])) for w in ("train", "eval")}
+    which = min(sizes, key=lambda w: abs(sizes[w][0] * sizes[w][1] - area))
+    return int(d.n_agents[which])
+
+
+def main(argv: list[str]) -> int:
+    from nca_qd.export import FORMATS, export_files
+    from nca_qd.sim.scenario import build_scenario
+
+    cfg = compose_config("export", argv)
+    if bool(cfg.layout) == bool(cfg.run):
+        raise NcaQdError("give either layout=<file.json> or run=<run dir>")
+    if cfg.format not in FORMATS:
+        raise NcaQdError(f"unknown format {cfg.format!r} (known: {', '.join(FORMATS)})")
+    if not cfg.out:
+        raise NcaQdError("give out=<folder>")
+    out = Path(str(cfg.out))
+    if out.exists() and not out.is_dir():
+        raise NcaQdError(f"out={out}: is a file, not a folder")
+    parent = out if out.is_dir() else out.parent
+    if parent.exists() and not os.access(parent, os.W_OK):
+        raise NcaQdError(f"out={out}: folder {parent} is not writable")
+    rows, domain, name = _from_file(cfg) if cfg.layout else _from_run(cfg)
+    agents = int(cfg.agents) if cfg.agents is not None else _default_agents(domain, (len(rows), len(rows[0])))
+    scen = build_scenario(rows, domain, n_agents=agents, source=name)
+    files = export_files(scen, str(cfg.format), name, agents, int(cfg.tasks), int(cfg.seed), float(cfg.reveal))
+    out.mkdir(parents=True, exist_ok=True)
+    for fname, text in files.items():
+        atomic_write_text(out / fname, text)
+    print(json.dumps({"format": cfg.format, "domain": domain, "agents": agents, "files": [str(out / f) for f in files]}))
+    return 0
+
+
+if __name__ == "__main__":
+    main_guard(main)()
