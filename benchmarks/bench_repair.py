@@ -16,7 +16,12 @@ Prints one table; all repairs single-threaded.
 instead repairs the NCA layouts (at S, C = 50) of ``--elites`` elites of each shipped search
 (drawn with ``--seed``) with the domain's repair settings at S under time limits
 (``improve_windows: null``, as the shipped searches ran) and under work limits (the default
-from 2026-11-28: LP relaxation and its exact rounding; ``--windows N``: with N windows after it): per run and mode the median / mean / max
+from 2026-11-28: LP relaxation and its exact rounding; ``--windows N``: with N windows after it)
+
+    .venv/bin/python -m benchmarks.bench_repair --seval 5 [--runs ...]
+
+repairs the 5 best elites of each run at S_eval (C_eval) with the evaluation's time-limited
+neighbourhood repair and with the work-limited hybrid, one line per layout and mode.: per run and mode the median / mean / max
 seconds, how many are proven optimal or within 1 % of the proven bound, and the total distance.
 """
 
@@ -115,6 +120,40 @@ def elites(runs: str, n: int, seed: int, windows: int | None = None) -> None:
             )
 
 
+def seval(runs: str, n: int, windows: int = 0) -> None:
+    """The ``n`` best elites of each run at S_eval (C_eval): the time-limited repair the
+    evaluation ran until 2026-11-28 (neighbourhood, 20 s of windows) against the work-limited
+    hybrid (LP relaxation and its exact rounding, then ``windows`` windows)."""
+    from experiments.cli import compose_config
+    from nca_qd.domains import make_domain
+    from nca_qd.evaluation.layouts import load_run
+    from nca_qd.pipeline import generate, make_generator
+    from nca_qd.run_dir import select_elites
+    from nca_qd.scoring.tasks import repair_options
+
+    print("run | cell | mode | status | seconds | distance | proven bound | gap")
+    for run in runs.split(","):
+        cfg, archive = load_run(run)
+        name = cfg["domain"]["name"]
+        dom = make_domain(cfg["domain"])
+        gen = make_generator(dom)
+        base = repair_options(compose_config("run", [f"domain={name}"]).domain, "eval")
+        modes = {
+            "time": {**base, "method": "neighbourhood", "improve_windows": None, "improve_time_s": "auto"},
+            "work": {**base, "method": "hybrid", "improve_windows": windows},
+        }
+        genotypes = np.asarray(archive["genotypes"])
+        for cell in select_elites(np.asarray(archive["objective"]), n):
+            lay = np.asarray(dom.assemble(generate(dom, gen, genotypes[cell][None], which="eval")[0]), np.int32)
+            for mode, opts in modes.items():
+                r = repair(name, lay, **opts)
+                print(
+                    f"{run} | {int(cell)} | {mode} | {r.status} | {r.seconds:.1f} | {r.objective} | "
+                    f"{r.details['bound']:.0f} | {100 * r.details.get('gap', float('nan')):.2f} %",
+                    flush=True,
+                )
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n-small", type=int, default=50)
@@ -124,8 +163,12 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--elites", type=int, default=0, help="repair this many elites of each --runs instead")
     ap.add_argument("--runs", default=RUNS)
-    ap.add_argument("--windows", type=int, default=None, help="(--elites) the work mode's window budget")
+    ap.add_argument("--windows", type=int, default=None, help="(--elites, --seval) the work mode's window budget")
+    ap.add_argument("--seval", type=int, default=0, help="repair this many best elites of each --runs at S_eval instead")
     args = ap.parse_args([] if argv is None else argv)
+    if args.seval:
+        seval(args.runs, args.seval, args.windows or 0)
+        return
     if args.elites:
         elites(args.runs, args.elites, args.seed, args.windows)
         return

@@ -114,10 +114,11 @@ def load_generator(run_dir: str | Path, cell: int | str = "best") -> Generator:
     """The generator in ``cell`` of a run's result archive (``"best"``: the highest objective at
     the training size) — from the run's checkpoint or its portable snapshot."""
     from nca_qd.domains import make_domain
-    from nca_qd.evaluation.layouts import load_run
     from nca_qd.pipeline import make_generator
+    from nca_qd.run_dir import load_archive, load_run_config
 
-    cfg, archive = load_run(run_dir)
+    cfg = load_run_config(run_dir)
+    archive = load_archive(run_dir, "result")
     if cfg.get("algo", {}).get("name") == "dsage":
         raise NcaQdError(f"{run_dir}: a DSAGE run's archive holds layouts, not generators")
     objective = np.asarray(archive["objective"])

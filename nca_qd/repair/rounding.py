@@ -10,8 +10,9 @@ it. Otherwise the window grows by one cell, then two, while it is proven infeasi
 part may cut a region off or miss a tile count) or its layout stays above the bound (each
 wider solve warm-started from the best so far).
 
-The work is bounded without a clock: at most ``max_cells`` cells (the LP of a far-from-valid
-layout leaves hundreds fractional, and one root of 579 cells took over a minute),
+The work is bounded without a clock: at most ``max_cells`` cells (by default 30 % of the map's
+free cells: the LP of a far-from-valid 33x36 layout leaves hundreds fractional, and one root of
+579 cells took over a minute),
 ``max_nodes`` branch-and-bound nodes and ``max_checks`` of HiGHS's interrupt checks per solve;
 so the result does not depend on the machine's load.
 """
@@ -25,8 +26,9 @@ from nca_qd.repair.milp import WindowResult, solve_window
 from nca_qd.repair.neighbourhood import weighted_distance
 from nca_qd.repair.validator import is_valid
 
-# Largest set of fractional cells (widened) re-solved; a larger one is left to the windows.
-ROUNDING_CELLS = 320
+# Largest set of fractional cells (widened) re-solved, as a share of the map's free cells (320 of
+# 33x36's 1,056); a larger one is left to the windows.
+ROUNDING_SHARE = 0.3
 # Branch-and-bound nodes per solve: the sub-MILPs of the searches' layouts that succeed close at
 # their root; one of 302 cells without a solution spent 15 s on 200 nodes.
 ROUNDING_NODES = 20
@@ -41,7 +43,7 @@ def round_relaxation(
     layout_in: np.ndarray,
     rules: Rules,
     *,
-    max_cells: int = ROUNDING_CELLS,
+    max_cells: int | None = None,
     max_nodes: int = ROUNDING_NODES,
     max_checks: int = ROUNDING_CHECKS,
     time_limit: float = 60.0,
@@ -55,6 +57,8 @@ def round_relaxation(
     if lp.fractional is None or lp.layout is None or not lp.fractional.any():
         return None, 0
     free = ~rules.fixed
+    if max_cells is None:
+        max_cells = int(ROUNDING_SHARE * free.sum())
     weights = rules.cell_weights(layout_in)
     best: np.ndarray | None = None
     cells = 0
