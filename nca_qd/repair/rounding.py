@@ -10,8 +10,8 @@ it. Otherwise the window grows by one cell, then two, while it is proven infeasi
 part may cut a region off or miss a tile count) or its layout stays above the bound (each
 wider solve warm-started from the best so far).
 
-The work is bounded without a clock: at most ``max_cells`` cells (by default 30 % of the map's
-free cells: the LP of a far-from-valid 33x36 layout leaves hundreds fractional, and one root of
+The work is bounded without a clock: at most ``max_cells`` cells (by default about 30 % of the
+map's free cells: the LP of a far-from-valid 33x36 layout leaves hundreds fractional, and one root of
 579 cells took over a minute),
 ``max_nodes`` branch-and-bound nodes and ``max_checks`` of HiGHS's interrupt checks per solve;
 so the result does not depend on the machine's load.
@@ -26,9 +26,9 @@ from nca_qd.repair.milp import WindowResult, solve_window
 from nca_qd.repair.neighbourhood import weighted_distance
 from nca_qd.repair.validator import is_valid
 
-# Largest set of fractional cells (widened) re-solved, as a share of the map's free cells (320 of
-# 33x36's 1,056); a larger one is left to the windows.
-ROUNDING_SHARE = 0.3
+# Largest set of fractional cells (widened) re-solved: 320 at 33x36 (1,056 free cells), in
+# proportion to the free cells elsewhere (2,999 at 101x102); a larger one is left to the windows.
+ROUNDING_CELLS, ROUNDING_FREE_CELLS = 320, 1056
 # Branch-and-bound nodes per solve: the sub-MILPs of the searches' layouts that succeed close at
 # their root; one of 302 cells without a solution spent 15 s on 200 nodes.
 ROUNDING_NODES = 20
@@ -58,7 +58,7 @@ def round_relaxation(
         return None, 0
     free = ~rules.fixed
     if max_cells is None:
-        max_cells = int(ROUNDING_SHARE * free.sum())
+        max_cells = int(round(ROUNDING_CELLS * int(free.sum()) / ROUNDING_FREE_CELLS))
     weights = rules.cell_weights(layout_in)
     best: np.ndarray | None = None
     cells = 0
