@@ -8,7 +8,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 MODULES := $(VENV)/.modules-$(shell find nca_qd experiments -name '*.py' | sort | cksum | cut -d' ' -f1)
 
-.PHONY: test lint run bench clean-venv
+.PHONY: test lint run bench notebook clean-venv
 
 $(STAMP): pyproject.toml CMakeLists.txt $(wildcard nca_qd/sim/rhcr/src/*) $(MODULES)
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -40,6 +40,11 @@ run: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) -m benchmarks.run_all
+
+# JupyterLab (the `notebook` extra) on the archive-exploration notebook.
+notebook: $(STAMP)
+	$(PY) -m pip install --quiet -e '.[notebook]'
+	$(PY) -m jupyter lab notebooks/explore_archive.ipynb
 
 clean-venv:
 	rm -rf $(VENV)

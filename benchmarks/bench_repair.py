@@ -16,13 +16,14 @@ Prints one table; all repairs single-threaded.
 instead repairs the NCA layouts (at S, C = 50) of ``--elites`` elites of each shipped search
 (drawn with ``--seed``) with the domain's repair settings at S under time limits
 (``improve_windows: null``, as the shipped searches ran) and under work limits (the default
-from 2026-11-28: LP relaxation and its exact rounding; ``--windows N``: with N windows after it)
+from 2026-11-28: LP relaxation and its exact rounding; ``--windows N``: with N windows after
+it): per run and mode the median / mean / max seconds, how many are proven optimal or within
+1 % of the proven bound, and the total distance.
 
     .venv/bin/python -m benchmarks.bench_repair --seval 5 [--runs ...]
 
 repairs the 5 best elites of each run at S_eval (C_eval) with the evaluation's time-limited
-neighbourhood repair and with the work-limited hybrid, one line per layout and mode.: per run and mode the median / mean / max
-seconds, how many are proven optimal or within 1 % of the proven bound, and the total distance.
+neighbourhood repair and with the work-limited hybrid, one line per layout and mode.
 """
 
 from __future__ import annotations
@@ -106,15 +107,21 @@ def elites(runs: str, n: int, seed: int, windows: int | None = None) -> None:
         genotypes = np.asarray(archive["genotypes"])
         out: dict[str, list] = {"time": [], "work": []}
         for cell in cells:
-            lay = np.asarray(dom.assemble(generate(dom, gen, genotypes[cell][None], which="train")[0]), np.int32)
+            lay = np.asarray(
+                dom.assemble(generate(dom, gen, genotypes[cell][None], which="train")[0]), np.int32
+            )
             for mode, opts in (("time", timed), ("work", work)):
                 out[mode].append(repair(cfg["domain"]["name"], lay, **opts))
         for mode, res in out.items():
             secs = [r.seconds for r in res]
-            near = sum(r.objective is not None and r.objective - r.details["bound"] <= 0.01 * r.objective for r in res)
+            near = sum(
+                r.objective is not None and r.objective - r.details["bound"] <= 0.01 * r.objective
+                for r in res
+            )
             print(
-                f"{run} | {mode} | {len(res)} | {statistics.median(secs):.2f} | {statistics.fmean(secs):.2f} | "
-                f"{max(secs):.2f} | {sum(r.status == 'optimal' for r in res)} | {near} | "
+                f"{run} | {mode} | {len(res)} | {statistics.median(secs):.2f} | "
+                f"{statistics.fmean(secs):.2f} | {max(secs):.2f} | "
+                f"{sum(r.status == 'optimal' for r in res)} | {near} | "
                 f"{sum(r.objective or 0 for r in res):.0f}",
                 flush=True,
             )
@@ -144,7 +151,9 @@ def seval(runs: str, n: int, windows: int = 0) -> None:
         }
         genotypes = np.asarray(archive["genotypes"])
         for cell in select_elites(np.asarray(archive["objective"]), n):
-            lay = np.asarray(dom.assemble(generate(dom, gen, genotypes[cell][None], which="eval")[0]), np.int32)
+            lay = np.asarray(
+                dom.assemble(generate(dom, gen, genotypes[cell][None], which="eval")[0]), np.int32
+            )
             for mode, opts in modes.items():
                 r = repair(name, lay, **opts)
                 print(
@@ -163,8 +172,12 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--elites", type=int, default=0, help="repair this many elites of each --runs instead")
     ap.add_argument("--runs", default=RUNS)
-    ap.add_argument("--windows", type=int, default=None, help="(--elites, --seval) the work mode's window budget")
-    ap.add_argument("--seval", type=int, default=0, help="repair this many best elites of each --runs at S_eval instead")
+    ap.add_argument(
+        "--windows", type=int, default=None, help="(--elites, --seval) the work mode's window budget"
+    )
+    ap.add_argument(
+        "--seval", type=int, default=0, help="repair this many best elites of each --runs at S_eval instead"
+    )
     args = ap.parse_args([] if argv is None else argv)
     if args.seval:
         seval(args.runs, args.seval, args.windows or 0)

@@ -9,6 +9,7 @@ the paper's cluster runs cost hundreds of CPU-hours).
     python -m benchmarks.bench_search [--domain warehouse_even] [--iters 4]
     python -m benchmarks.bench_search --run-dir /path/to/run     # summarise a run's metrics.csv
     python -m benchmarks.bench_search --run-dir /path/to/run --iterations 12-40
+    python -m benchmarks.bench_search --replay-early-stop results/warehouse_even_a5  # replayed
 
 The first iteration includes JAX compilation (NCA, screen) and the worker pool's start and is
 reported apart. Early iterations send most layouts to exact RHCR (the result archive is empty);
@@ -85,6 +86,44 @@ def run(domain: str, iters: int) -> list[dict[str, str]]:
             return list(csv.DictReader(fh))
 
 
+def replay_early_stop(run_dirs: str, deltas=(0.02, 0.05, 0.1)) -> None:
+    """What stopping a layout's exact runs after its first would have saved in a finished search,
+    and what it would have lost: from its memo (every exactly-run layout, its 5 runs) and the
+    result archive's elite each layout met (rebuilt from the memo). A layout in an occupied
+    cell stops when even its best case cannot beat that elite: the other runs at (1 + delta) x
+    its first where the first flows (above 0.8 of the search's median throughput), at the
+    search's best run anywhere where it congests. Lost: stopped layouts whose 5-run mean beat
+    the elite (they would have entered the result archive)."""
+    import numpy as np
+
+    from benchmarks.bench_screen import _elite_before
+    from nca_qd.scoring.memo import layout_key
+
+    for run in run_dirs.split(","):
+        memo = np.load(Path(run) / "eval_memo.npz")
+        by_key = {layout_key(lay): i for i, lay in enumerate(memo["repair_layouts"])}
+        layouts = memo["repair_layouts"][[by_key[bytes(k)] for k in memo["exact_keys"]]]
+        elite = _elite_before(memo, Path(run) / "config.yaml", layouts)
+        thr = memo["exact_throughput"]
+        mean, first, n_runs = thr.mean(1), thr[:, 0], thr.shape[1]
+        occupied = np.isfinite(elite)
+        better = occupied & (mean > elite)
+        flows = first > 0.8 * np.median(mean)
+        print(
+            f"{run}: {len(mean)} exactly-run layouts, {occupied.sum()} came to an occupied cell, "
+            f"{better.sum()} beat its elite"
+        )
+        for delta in deltas:
+            rest = np.where(flows, first * (1 + delta), np.nanmax(thr))
+            stop = occupied & ((first + (n_runs - 1) * rest) / n_runs < elite)
+            lost = stop & better
+            print(
+                f"  delta {delta}: stopped {stop.sum()} ({stop.sum() / max(occupied.sum(), 1):.1%} of "
+                f"those), lost {lost.sum()} of {better.sum()} improvers; runs saved "
+                f"{(n_runs - 1) * stop.sum()} of {thr.size} ({(n_runs - 1) * stop.sum() / thr.size:.1%})"
+            )
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--domain", default="warehouse_even")
@@ -97,7 +136,16 @@ def main(argv: list[str] | None = None) -> None:
         help="with --run-dir: only iterations A..B (e.g. the ones that ran on an "
         "otherwise idle machine); the first of them is reported apart",
     )
+    ap.add_argument(
+        "--replay-early-stop",
+        default=None,
+        metavar="RUN[,RUN]",
+        help="finished searches: what stopping exact runs after the first would save and lose",
+    )
     args = ap.parse_args(argv if argv is not None else [])
+    if args.replay_early_stop:
+        replay_early_stop(args.replay_early_stop)
+        return
     if args.run_dir:
         with open(Path(args.run_dir) / "metrics.csv") as fh:
             rows = list(csv.DictReader(fh))

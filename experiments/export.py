@@ -49,7 +49,9 @@ def _from_run(cfg) -> tuple[list[str], str, str]:
     g = load_generator(cfg.run, cfg.cell)
     if g.domain.name not in ("warehouse_even", "warehouse_uneven", "manufacturing"):
         raise NcaQdError(f"{cfg.run} is a {g.domain.name} run: only multi-agent layouts are exported")
-    rows, cols = (cfg.rows, cfg.cols) if cfg.rows is not None or cfg.cols is not None else g.full_shape("train")
+    rows, cols = (
+        (cfg.rows, cfg.cols) if cfg.rows is not None or cfg.cols is not None else g.full_shape("train")
+    )
     layout = g.layout(rows, cols, repair=bool(cfg.repair), n_shelves=cfg.n_shelves)
     name = cfg.name or f"{Path(str(cfg.run)).name}_c{g.cell}_{layout.shape[0]}x{layout.shape[1]}"
     return g.rows(layout), g.domain.name, name
@@ -89,11 +91,17 @@ def main(argv: list[str]) -> int:
     rows, domain, name = _from_file(cfg) if cfg.layout else _from_run(cfg)
     agents = int(cfg.agents) if cfg.agents is not None else _default_agents(domain, (len(rows), len(rows[0])))
     scen = build_scenario(rows, domain, n_agents=agents, source=name)
-    files = export_files(scen, str(cfg.format), name, agents, int(cfg.tasks), int(cfg.seed), float(cfg.reveal))
+    files = export_files(
+        scen, str(cfg.format), name, agents, int(cfg.tasks), int(cfg.seed), float(cfg.reveal)
+    )
     out.mkdir(parents=True, exist_ok=True)
     for fname, text in files.items():
         atomic_write_text(out / fname, text)
-    print(json.dumps({"format": cfg.format, "domain": domain, "agents": agents, "files": [str(out / f) for f in files]}))
+    print(
+        json.dumps(
+            {"format": cfg.format, "domain": domain, "agents": agents, "files": [str(out / f) for f in files]}
+        )
+    )
     return 0
 
 

@@ -133,7 +133,9 @@ def load_generator(run_dir: str | Path, cell: int | str = "best") -> Generator:
             raise NcaQdError(f"{run_dir}: no elite in archive cell {index}")
     domain = make_domain(cfg.domain)
     params = np.asarray(archive["genotypes"][index], dtype=np.float32)
-    return Generator(Path(run_dir), index, float(objective[index]), params, domain, cfg, make_generator(domain))
+    return Generator(
+        Path(run_dir), index, float(objective[index]), params, domain, cfg, make_generator(domain)
+    )
 
 
 def _repairable(domain) -> bool:

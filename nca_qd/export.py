@@ -108,11 +108,20 @@ def lorr_files(
 
 
 def export_files(
-    scen: Scenario, fmt: str, name: str, n_agents: int, n_tasks: int = 1000, seed: int = 0, reveal: float = 1.0
+    scen: Scenario,
+    fmt: str,
+    name: str,
+    n_agents: int,
+    n_tasks: int = 1000,
+    seed: int = 0,
+    reveal: float = 1.0,
 ) -> dict[str, str]:
     """The files of ``fmt`` (:data:`FORMATS`) for a scenario: file name -> text."""
     if fmt == "movingai":
-        return {f"{name}.map": movingai_map(scen), f"{name}.scen": movingai_scen(scen, f"{name}.map", n_agents, seed)}
+        return {
+            f"{name}.map": movingai_map(scen),
+            f"{name}.scen": movingai_scen(scen, f"{name}.map", n_agents, seed),
+        }
     if fmt == "lorr":
         return lorr_files(scen, name, n_agents, n_tasks, seed, reveal)
     raise NcaQdError(f"unknown format {fmt!r} (known: {', '.join(FORMATS)})")

@@ -74,7 +74,9 @@ def test_lorr_problem_reads_back(tmp_path):
         endpoint, station = (divmod(int(x), w) for x in line.split())
         assert rows[endpoint[0]][endpoint[1]] == "e" and rows[station[0]][station[1]] == "w"
     again = tmp_path / "again"
-    assert export([f"layout={PAPER}", "format=lorr", f"out={again}", "agents=150", "tasks=400"]).returncode == 0
+    assert (
+        export([f"layout={PAPER}", "format=lorr", f"out={again}", "agents=150", "tasks=400"]).returncode == 0
+    )
     for f in ("json", "map", "agents", "tasks"):  # the same seed, the same files
         name = f"paper_cma-mae_a5_even_33x36.{f}"
         assert (again / name).read_text() == (tmp_path / name).read_text()

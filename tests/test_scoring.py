@@ -676,7 +676,8 @@ def test_a_loaded_machine_gives_the_same_warehouse_search(tmp_path, monkeypatch)
     for name in ("idle", "loaded"):
         with open(tmp_path / name / "metrics.csv") as fh:
             rows[name] = [
-                {k: v for k, v in r.items() if "second" not in k and "time" not in k} for r in csv.DictReader(fh)
+                {k: v for k, v in r.items() if "second" not in k and "time" not in k}
+                for r in csv.DictReader(fh)
             ]
     assert len(rows["idle"]) == 3 and rows["idle"] == rows["loaded"]
     a, b = (np.load(tmp_path / name / "archive_result.npz") for name in ("idle", "loaded"))

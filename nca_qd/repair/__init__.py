@@ -177,7 +177,16 @@ def repair(
             status, best = _relax(layout, best, rules, left, threads, seed, details)
             if status == "feasible" and improve_windows:
                 status, best = _improve_to_bound(
-                    layout, best, rules, improve_windows, t0 + time_limit_s, window, window_time_s, threads, seed, details
+                    layout,
+                    best,
+                    rules,
+                    improve_windows,
+                    t0 + time_limit_s,
+                    window,
+                    window_time_s,
+                    threads,
+                    seed,
+                    details,
                 )
     else:
         status, best = _full(layout, rules, greedy, time_limit_s, threads, seed, details)
