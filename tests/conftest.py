@@ -57,3 +57,25 @@ def maps_dir() -> Path:
     if not SHARED_MAPS.is_dir():
         pytest.skip(f"shared reference maps not found at {SHARED_MAPS}")
     return SHARED_MAPS
+
+
+@pytest.fixture
+def slow_clock(monkeypatch):
+    """``slow_clock(module, ...)``: those modules' ``time.perf_counter`` advances 100 ms per
+    reading (a loaded machine, to the code that reads it)."""
+    import itertools
+    import time
+
+    ticks = itertools.count()
+    start = time.perf_counter()
+
+    class SlowClock:
+        @staticmethod
+        def perf_counter():
+            return start + 0.1 * next(ticks)
+
+    def slow(*modules):
+        for module in modules:
+            monkeypatch.setattr(module, "time", SlowClock)
+
+    return slow

@@ -259,12 +259,9 @@ def test_unknown_tie_break_is_refused():
         repair("warehouse_even", _rows_of_endpoints(), n_shelves=4, tie_break="maybe")
 
 
-def test_work_limits_give_the_same_repair_on_a_slow_clock(monkeypatch):
+def test_work_limits_give_the_same_repair_on_a_slow_clock(slow_clock):
     """improve_windows bounds the repair by work: a clock that runs 100 ms per reading (a loaded
     machine, to the code) changes nothing; the time-bounded default stops early on it."""
-    import itertools
-    import time as real_time
-
     from nca_qd.repair import neighbourhood
 
     rng = np.random.default_rng(1)
@@ -273,15 +270,7 @@ def test_work_limits_give_the_same_repair_on_a_slow_clock(monkeypatch):
     timed = dict(method="neighbourhood", n_shelves=90, improve_time_s=0.3, time_limit_s=110, seed=0)
     idle, idle_timed = repair("warehouse_even", lay, **det), repair("warehouse_even", lay, **timed)
 
-    ticks = itertools.count()
-    start = real_time.perf_counter()
-
-    class SlowClock:
-        @staticmethod
-        def perf_counter():
-            return start + 0.1 * next(ticks)
-
-    monkeypatch.setattr(neighbourhood, "time", SlowClock)
+    slow_clock(neighbourhood)
     loaded, loaded_timed = repair("warehouse_even", lay, **det), repair("warehouse_even", lay, **timed)
     assert np.array_equal(idle.layout, loaded.layout) and idle.status == loaded.status
     assert (

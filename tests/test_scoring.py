@@ -648,29 +648,17 @@ def test_tiny_warehouse_run_writes_outputs_resumes_identically_and_from_its_snap
     assert np.isfinite(c["objective"]).all() and c["genotypes"].shape[0] == c["objective"].size
 
 
-def test_a_loaded_machine_gives_the_same_warehouse_search(tmp_path, monkeypatch):
+def test_a_loaded_machine_gives_the_same_warehouse_search(tmp_path, slow_clock):
     """The domain's own repair settings bound work, not time: three iterations of a warehouse
     search give the same metrics and archive when every clock reading the repair takes runs
     100 ms (a loaded machine, to the code) as on an idle machine."""
-    import itertools
-    import time as real_time
-
     from nca_qd import repair as repair_pkg
     from nca_qd.repair import neighbourhood
 
     args = [a for a in TINY_WAREHOUSE if "improve_windows" not in a]
     args += ["eval.workers=0", "output.pictures=false", "qd.n_evals=18"]
     assert _run_here(args + [f"run_dir={tmp_path / 'idle'}"]) == 0
-    ticks = itertools.count()
-    start = real_time.perf_counter()
-
-    class SlowClock:
-        @staticmethod
-        def perf_counter():
-            return start + 0.1 * next(ticks)
-
-    monkeypatch.setattr(neighbourhood, "time", SlowClock)
-    monkeypatch.setattr(repair_pkg, "time", SlowClock)
+    slow_clock(neighbourhood, repair_pkg)
     assert _run_here(args + [f"run_dir={tmp_path / 'loaded'}"]) == 0
     rows = {}
     for name in ("idle", "loaded"):

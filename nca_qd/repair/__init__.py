@@ -319,9 +319,10 @@ def _relax(layout, start, rules, time_limit, threads, seed, details):
         rounded, cells = round_relaxation(res, layout, rules, threads=threads, seed=seed)
         details["rounding_s"] = time.perf_counter() - t
         details["rounding_cells"] = cells
-        if rounded is not None and weighted_distance(rounded, layout, weights) < cost:
-            details["rounding_gain"] = cost - weighted_distance(rounded, layout, weights)
-            start, cost = rounded, weighted_distance(rounded, layout, weights)
+        rounded_cost = np.inf if rounded is None else weighted_distance(rounded, layout, weights)
+        if rounded_cost < cost:
+            details["rounding_gain"] = cost - rounded_cost
+            start, cost = rounded, rounded_cost
     if res.bound is not None and cost <= res.bound:
         return "optimal", start
     return "feasible", start
