@@ -92,7 +92,7 @@ bool WindowedPBS::waits_at_start(const int* p, int cell, int t) const {
 }
 
 // RHCR's choice of who gives way in each conflict (find_replan_agents).
-void WindowedPBS::add_replans(const Node& n, const std::vector<Conflict>& conflicts, std::unordered_set<int>& replan) {
+void WindowedPBS::add_replans(const Node& n, const std::vector<Conflict>& conflicts, ReplanSet& replan) {
   for (const Conflict& c : conflicts) {
     if (queued_[c.a1] || queued_[c.a2]) continue;  // replan.count(), without hashing
     int who = -1;
@@ -151,7 +151,7 @@ bool WindowedPBS::make_consistent(Node& n, int agent, const std::vector<AgentQue
   // RHCR keeps the agents to replan in an unordered_set and always takes begin(): with
   // libstdc++ that is roughly the most recently added agent, not the smallest id. The same
   // container, filled and emptied in the same sequence, replans in the reference's order.
-  std::unordered_set<int> replan;
+  ReplanSet replan;
   if (agent >= 0) {
     replan.insert(agent);
     queued_[agent] = 1;
@@ -198,8 +198,11 @@ const WindowedPBS::Conflict& WindowedPBS::choose_conflict(Node& n) const {
   return *best;
 }
 
+// The node budget is checked at every expansion; the clocks (a thread CPU clock is a system
+// call, several % of a call's time when read per node) every kClockEvery expansions.
 bool WindowedPBS::out_of_time(const PbsLimits& limits, int64_t expanded, double cpu0) const {
   if (limits.max_nodes > 0 && expanded >= limits.max_nodes) return true;
+  if (expanded % kClockEvery != 0) return false;
   if (limits.time_limit_s > 0 && thread_cpu_seconds() - cpu0 > limits.time_limit_s) return true;
   return std::chrono::steady_clock::now() > limits.deadline;
 }
@@ -337,9 +340,11 @@ std::unique_ptr<WindowedPBS::Node> WindowedPBS::take_node() {
 }
 
 void WindowedPBS::recycle(std::unique_ptr<Node> node) {
-  // A few dozen spare nodes cover the depth-first search's churn; more would only hold memory
-  // (a node at 1,400 agents holds about 0.3 MB).
-  if (node && pool_.size() < 64) pool_.push_back(std::move(node));
+  // The depth-first stack holds hundreds of nodes when a call ends, and the next call needs as
+  // many again: keep up to kPoolBytes of spare nodes (at 200 agents about 3,000 of them; at
+  // 1,400 agents, whose nodes hold about 0.3 MB each, a hundred or so).
+  const size_t node_bytes = static_cast<size_t>(n_agents_) * (window_ + 1) * sizeof(int) + 1;
+  if (node && pool_.size() < std::max<size_t>(64, kPoolBytes / node_bytes)) pool_.push_back(std::move(node));
 }
 
 // RHCR's LRA* repair of a failed call, plus a swap check: execute `executed_steps` steps of

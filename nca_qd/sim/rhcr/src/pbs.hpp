@@ -38,6 +38,7 @@
 #include "astar.hpp"
 #include "grid.hpp"
 #include "priority_order.hpp"
+#include "pool_allocator.hpp"
 #include "rng.hpp"
 
 namespace rhcr {
@@ -53,6 +54,11 @@ struct PbsLimits {
   std::chrono::steady_clock::time_point deadline = std::chrono::steady_clock::time_point::max();
   bool prioritize_start = true;
 };
+
+// make_consistent's agents to replan: RHCR's std::unordered_set<int> (its iteration order
+// decides who is replanned next, so the container stays the same), with its one-element
+// allocations served from a free list instead of malloc.
+using ReplanSet = std::unordered_set<int, std::hash<int>, std::equal_to<int>, PoolAllocator<int>>;
 
 class WindowedPBS {
  public:
@@ -90,10 +96,11 @@ class WindowedPBS {
   bool conflict_between(const Node& n, int a1, int a2, Conflict& c) const;
   void conflicts_of(const Node& n, int agent, std::vector<Conflict>& out) const;
   bool waits_at_start(const int* p, int cell, int t) const;
-  void add_replans(const Node& n, const std::vector<Conflict>& conflicts, std::unordered_set<int>& replan);
+  void add_replans(const Node& n, const std::vector<Conflict>& conflicts, ReplanSet& replan);
   bool find_path(Node& n, int agent, const std::vector<AgentQuery>& queries, int n_planned);
   bool make_consistent(Node& n, int agent, const std::vector<AgentQuery>& queries);
   const Conflict& choose_conflict(Node& n) const;
+  static constexpr int64_t kClockEvery = 32;
   bool out_of_time(const PbsLimits& limits, int64_t expanded, double cpu0) const;
   void repair(const Node& best, const std::vector<AgentQuery>& queries, int executed_steps, Rng& rng,
               std::vector<int>& out);
@@ -129,6 +136,7 @@ class WindowedPBS {
   // Nodes are recycled within and across calls: a child is copied into a spent node's
   // buffers, so expanding a node allocates nothing once the pool is warm (at 200 agents the
   // copies' allocations were a tenth of the planner's time).
+  static constexpr size_t kPoolBytes = size_t{32} << 20;
   std::vector<std::unique_ptr<Node>> pool_;
   std::unique_ptr<Node> take_node();
   void recycle(std::unique_ptr<Node> node);
