@@ -64,8 +64,9 @@ def screen_crowd_mean(cfg: DictConfig) -> float:
 
 
 def rhcr_options(cfg: DictConfig) -> dict:
-    """The exact planner's knobs (``plan_time_limit_s``, ``pbs_max_nodes``, ``prioritize_start``),
-    validated; keys missing from ``cfg`` keep the simulator's defaults (RHCR as the paper ran it)."""
+    """The exact planner's knobs (``plan_time_limit_s``, ``pbs_max_nodes``,
+    ``plan_max_expansions``, ``prioritize_start``), validated; keys missing from ``cfg`` keep
+    the simulator's defaults (RHCR as the paper ran it)."""
     from nca_qd.sim.rhcr import PLANNER_KEYS, planner_options
 
     return planner_options({k: cfg[k] for k in PLANNER_KEYS if k in cfg})

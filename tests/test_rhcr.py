@@ -266,3 +266,40 @@ def test_planner_decisions_are_pinned(case, rows, scenario, n, T, kw, expected):
     digest = hashlib.sha256(np.ascontiguousarray(res.paths, dtype=np.int32).tobytes()).hexdigest()[:16]
     work = (res.pbs_failures, res.pbs_nodes, res.low_level_expansions)
     assert (res.finished_tasks, res.stop_time, *work, digest) == expected, case
+
+
+def test_a_work_cap_stops_planning_calls_at_the_same_point_every_time():
+    # The "failed calls" case above: 70 agents, a node budget generous enough that calls search
+    # far. A cap on A* expansions well below what the largest calls use makes those calls fail
+    # (and be repaired, collision-free); two runs with the same cap are the same run, and a cap
+    # above every call's expansions is no cap at all.
+    rows, kw = shelf_blocks(17, 22), {"pbs_max_nodes": 2000, "plan_time_limit_s": None}
+    free = run_checked(rows, "warehouse_uneven", 70, 300, **kw)
+    per_call = free.call_expansions
+    assert per_call is not None and per_call.sum() == free.low_level_expansions
+    cap = int(np.percentile(per_call, 90))
+    capped = [run_checked(rows, "warehouse_uneven", 70, 300, plan_max_expansions=cap, **kw) for _ in range(2)]
+    assert capped[0].pbs_failures > free.pbs_failures
+    # a call stops at the first node expansion after reaching the cap
+    assert (capped[0].call_expansions[capped[0].call_failed] >= cap).any()
+    a, b = capped
+    assert (a.finished_tasks, a.pbs_nodes, a.low_level_expansions) == (
+        b.finished_tasks,
+        b.pbs_nodes,
+        b.low_level_expansions,
+    )
+    assert np.array_equal(a.paths, b.paths)
+    loose = run_checked(rows, "warehouse_uneven", 70, 300, plan_max_expansions=int(per_call.max()) + 1, **kw)
+    assert (loose.pbs_failures, loose.low_level_expansions) == (free.pbs_failures, free.low_level_expansions)
+    assert np.array_equal(loose.paths, free.paths)
+
+
+@pytest.mark.parametrize("bad", [0, -5, True, 2.5, "many"])
+def test_a_bad_work_cap_is_a_clear_error(bad):
+    from nca_qd.sim.rhcr import planner_options
+
+    with pytest.raises(NcaQdError, match="plan_max_expansions"):
+        simulate(WAREHOUSE, "warehouse_even", 5, 20, 0, plan_max_expansions=bad)
+    with pytest.raises(NcaQdError, match="eval.plan_max_expansions"):
+        planner_options({"plan_max_expansions": bad}, "eval.")
+    assert planner_options({"plan_max_expansions": None}) == {}

@@ -60,6 +60,7 @@ class SimResult(RunResult):
     call_nodes: np.ndarray | None = None  # per planning call: PBS nodes expanded
     call_cpu_seconds: np.ndarray | None = None  # per planning call: CPU seconds
     call_failed: np.ndarray | None = None  # per planning call: PBS failed (repaired)
+    call_expansions: np.ndarray | None = None  # per planning call: A* expansions
     pbs_nodes: int = 0
     low_level_expansions: int = 0
 
@@ -81,6 +82,7 @@ def simulate(
     plan_time_limit_s: float | None = 60.0,
     prioritize_start: bool = True,
     reference_starts: bool = False,
+    plan_max_expansions: int | None = None,
 ) -> SimResult:
     """Simulate ``n_agents`` agents on the layout ``rows`` for ``T`` timesteps.
 
@@ -92,7 +94,9 @@ def simulate(
     ``"auto"``: 7,000,000 / ``n_agents``, at least 1,000 -- the nodes the reference RHCR
     expands within its 60 s at 1,400 agents, where it spends 6-26 ms per node; our nodes are
     10-100 times cheaper, so a time limit alone would search far longer than the paper's
-    planner could). A call that hits either is repaired and counted in ``pbs_failures``.
+    planner could). ``plan_max_expansions`` bounds a call's A* expansions (``None``: no bound),
+    a bound on work that, unlike the CPU-time cutoff, stops a jammed call at the same point on
+    any machine. A call that hits any of them is repaired and counted in ``pbs_failures``.
     """
     scen = build_scenario(list(rows), scenario, n_agents=n_agents)
     return simulate_scenario(
@@ -108,6 +112,7 @@ def simulate(
         plan_time_limit_s,
         prioritize_start,
         reference_starts,
+        plan_max_expansions,
     )
 
 
@@ -124,6 +129,7 @@ def simulate_scenario(
     plan_time_limit_s: float | None = 60.0,
     prioritize_start: bool = True,
     reference_starts: bool = False,
+    plan_max_expansions: int | None = None,
 ) -> SimResult:
     """:func:`simulate` for an already validated :class:`Scenario`."""
     _check_params(scen, n_agents, T, window, replan, time_limit_s)
@@ -137,6 +143,14 @@ def simulate_scenario(
         nodes = int(pbs_max_nodes)
     else:
         raise NcaQdError(f"pbs_max_nodes must be a positive integer, 'auto' or None, got {pbs_max_nodes!r}")
+    if plan_max_expansions is not None and not (
+        isinstance(plan_max_expansions, (int, np.integer))
+        and not isinstance(plan_max_expansions, bool)
+        and plan_max_expansions > 0
+    ):
+        raise NcaQdError(
+            f"plan_max_expansions must be a positive integer or None, got {plan_max_expansions!r}"
+        )
     raw = _core.run(
         np.ascontiguousarray(scen.traversable, dtype=np.uint8),
         [c.cells.tolist() for c in scen.classes],
@@ -154,6 +168,7 @@ def simulate_scenario(
         float(plan_time_limit_s or 0.0),
         bool(prioritize_start),
         bool(reference_starts),
+        int(plan_max_expansions or 0),
     )
     width = scen.shape[1]
     offsets, cells, dwell = raw["goal_offsets"], raw["goal_cells"], raw["goal_dwell"]
@@ -187,6 +202,7 @@ def simulate_scenario(
         call_nodes=raw["call_nodes"],
         call_cpu_seconds=raw["call_cpu_seconds"],
         call_failed=raw["call_failed"].astype(bool),
+        call_expansions=raw["call_expansions"],
         goals=goals,
         paths=paths,
     )
@@ -220,7 +236,7 @@ def simulate_many(
 
 
 # The planner's knobs a config may set (the rest of a run's settings are T, seeds, w, h).
-PLANNER_KEYS = ("plan_time_limit_s", "pbs_max_nodes", "prioritize_start", "starts")
+PLANNER_KEYS = ("plan_time_limit_s", "pbs_max_nodes", "plan_max_expansions", "prioritize_start", "starts")
 STARTS = ("random", "reference")  # start cells drawn per seed / the reference's one configuration
 
 
@@ -249,6 +265,11 @@ def planner_options(cfg: Mapping[str, Any] | None, where: str = "") -> dict[str,
         ):
             raise NcaQdError(f"{where}pbs_max_nodes must be a positive integer, auto or null, got {nodes!r}")
         out["pbs_max_nodes"] = nodes
+    if cfg.get("plan_max_expansions") is not None:  # (null is the default: keys of earlier runs stay valid)
+        work = cfg["plan_max_expansions"]
+        if isinstance(work, bool) or not isinstance(work, int) or work <= 0:
+            raise NcaQdError(f"{where}plan_max_expansions must be a positive integer or null, got {work!r}")
+        out["plan_max_expansions"] = work
     if "prioritize_start" in cfg:
         if not isinstance(cfg["prioritize_start"], bool):
             raise NcaQdError(

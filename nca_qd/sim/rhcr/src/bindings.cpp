@@ -28,7 +28,7 @@ nb::dict run(nb::ndarray<const uint8_t, nb::ndim<2>, nb::c_contig, nb::device::c
              std::vector<std::vector<int>> class_cells, std::vector<std::vector<double>> class_weights,
              std::vector<int> class_dwell, std::vector<int> cycle, int n_agents, int horizon, uint64_t seed,
              int window, int replan, double time_limit_s, int64_t pbs_max_nodes, bool record_paths,
-             double plan_time_limit_s, bool prioritize_start, bool reference_starts) {
+             double plan_time_limit_s, bool prioritize_start, bool reference_starts, int64_t plan_max_expansions) {
   rhcr::SimConfig cfg;
   cfg.rows = static_cast<int>(traversable.shape(0));
   cfg.cols = static_cast<int>(traversable.shape(1));
@@ -49,6 +49,7 @@ nb::dict run(nb::ndarray<const uint8_t, nb::ndim<2>, nb::c_contig, nb::device::c
   cfg.plan_time_limit_s = plan_time_limit_s;
   cfg.prioritize_start = prioritize_start;
   cfg.reference_starts = reference_starts;
+  cfg.plan_max_expansions = plan_max_expansions;
 
   rhcr::SimResult r;
   {
@@ -73,6 +74,7 @@ nb::dict run(nb::ndarray<const uint8_t, nb::ndim<2>, nb::c_contig, nb::device::c
   d["call_nodes"] = to_numpy(std::move(r.call_nodes), {calls});
   d["call_cpu_seconds"] = to_numpy(std::move(r.call_cpu_seconds), {calls});
   d["call_failed"] = to_numpy(std::move(r.call_failed), {calls});
+  d["call_expansions"] = to_numpy(std::move(r.call_expansions), {calls});
   d["tasks_per_step"] = to_numpy(std::move(r.tasks_per_step), {static_cast<size_t>(horizon)});
   d["tile_visits"] = to_numpy(std::move(r.tile_visits), {static_cast<size_t>(cfg.rows), static_cast<size_t>(cfg.cols)});
   if (record_paths) d["paths"] = to_numpy(std::move(r.paths), {steps, static_cast<size_t>(n_agents)});
@@ -149,7 +151,7 @@ NB_MODULE(_core, m) {
   m.def("run", &run, "traversable"_a, "class_cells"_a, "class_weights"_a, "class_dwell"_a, "cycle"_a,
         "n_agents"_a, "horizon"_a, "seed"_a, "window"_a = 10, "replan"_a = 5, "time_limit_s"_a = 0.0,
         "pbs_max_nodes"_a = 0, "record_paths"_a = false, "plan_time_limit_s"_a = 60.0,
-        "prioritize_start"_a = true, "reference_starts"_a = false,
+        "prioritize_start"_a = true, "reference_starts"_a = false, "plan_max_expansions"_a = 0,
         "Run one simulation; returns a dict of figures and NumPy arrays. Releases the GIL.");
   m.def("plan", &plan, "traversable"_a, "starts"_a, "goals"_a, "window"_a = 10, "executed_steps"_a = 5,
         "max_nodes"_a = 0, "time_limit_s"_a = 60.0, "prioritize_start"_a = true, "seed"_a = 0,

@@ -200,8 +200,9 @@ const WindowedPBS::Conflict& WindowedPBS::choose_conflict(Node& n) const {
 
 // The node budget is checked at every expansion; the clocks (a thread CPU clock is a system
 // call, several % of a call's time when read per node) every kClockEvery expansions.
-bool WindowedPBS::out_of_time(const PbsLimits& limits, int64_t expanded, double cpu0) const {
+bool WindowedPBS::out_of_time(const PbsLimits& limits, int64_t expanded, int64_t expansions0, double cpu0) const {
   if (limits.max_nodes > 0 && expanded >= limits.max_nodes) return true;
+  if (limits.max_expansions > 0 && astar_.expansions() - expansions0 >= limits.max_expansions) return true;
   if (expanded % kClockEvery != 0) return false;
   if (limits.time_limit_s > 0 && thread_cpu_seconds() - cpu0 > limits.time_limit_s) return true;
   return std::chrono::steady_clock::now() > limits.deadline;
@@ -210,6 +211,7 @@ bool WindowedPBS::out_of_time(const PbsLimits& limits, int64_t expanded, double 
 bool WindowedPBS::solve(const std::vector<AgentQuery>& queries, int executed_steps, const PbsLimits& limits,
                         Rng& rng, std::vector<int>& out) {
   const double cpu0 = thread_cpu_seconds();
+  const int64_t expansions0 = astar_.expansions();
   const int len = window_ + 1;
   prioritize_start_ = limits.prioritize_start;
   nogood_.clear();
@@ -264,7 +266,7 @@ bool WindowedPBS::solve(const std::vector<AgentQuery>& queries, int executed_ste
   bool have_best = false;
   int64_t expanded = 0;
   while (!stack.empty()) {
-    if (out_of_time(limits, expanded, cpu0)) {
+    if (out_of_time(limits, expanded, expansions0, cpu0)) {
       if (!have_best) std::swap(best, *stack.back());  // nothing expanded yet: the root
       break;
     }

@@ -51,6 +51,10 @@ struct PbsStats {
 struct PbsLimits {
   int64_t max_nodes = 0;        // high-level nodes per call; <= 0: none
   double time_limit_s = 60;     // CPU seconds per call; <= 0: none
+  // A* expansions per call; <= 0: none. A bound on work, not time: the same call stops at the
+  // same point on any machine and under any load (a jammed call's make_consistent cascades
+  // replan thousands of agents per node, so nodes alone bound it loosely).
+  int64_t max_expansions = 0;
   std::chrono::steady_clock::time_point deadline = std::chrono::steady_clock::time_point::max();
   bool prioritize_start = true;
 };
@@ -101,7 +105,7 @@ class WindowedPBS {
   bool make_consistent(Node& n, int agent, const std::vector<AgentQuery>& queries);
   const Conflict& choose_conflict(Node& n) const;
   static constexpr int64_t kClockEvery = 32;
-  bool out_of_time(const PbsLimits& limits, int64_t expanded, double cpu0) const;
+  bool out_of_time(const PbsLimits& limits, int64_t expanded, int64_t expansions0, double cpu0) const;
   void repair(const Node& best, const std::vector<AgentQuery>& queries, int executed_steps, Rng& rng,
               std::vector<int>& out);
 

@@ -104,6 +104,7 @@ SimResult simulate(const SimConfig& cfg) {
                      : cfg.pbs_max_nodes == 0 ? std::max<int64_t>(1000, 7000000 / N)
                                               : 0;
   limits.time_limit_s = cfg.plan_time_limit_s;
+  limits.max_expansions = cfg.plan_max_expansions;
   limits.deadline = deadline;
   limits.prioritize_start = cfg.prioritize_start;
   Rng repair_rng(cfg.seed ^ 0x5DEECE66DULL);  // the failed-call repair's own stream
@@ -171,11 +172,13 @@ SimResult simulate(const SimConfig& cfg) {
     for (auto& q : queries) q.min_end = steps;
     const double call_cpu0 = thread_cpu_seconds();
     const int64_t call_nodes0 = pbs.stats().nodes_expanded;
+    const int64_t call_expansions0 = pbs.low_level_expansions();
     const bool solved = pbs.solve(queries, steps, limits, repair_rng, plan);
     res.pbs_failures += !solved;
     res.call_failed.push_back(!solved);
     res.call_nodes.push_back(static_cast<int32_t>(pbs.stats().nodes_expanded - call_nodes0));
     res.call_cpu_seconds.push_back(thread_cpu_seconds() - call_cpu0);
+    res.call_expansions.push_back(pbs.low_level_expansions() - call_expansions0);
     ++res.replans;
     if (limited && std::chrono::steady_clock::now() > deadline) {  // the call was cut short
       res.timed_out = true;

@@ -35,6 +35,7 @@ struct SimConfig {
   double plan_time_limit_s = 60;   // one planning call, CPU seconds (RHCR's cutoffTime); <= 0: none
   int64_t pbs_max_nodes = 0;       // high-level PBS nodes per planning call; 0: automatic
                                    // (7,000,000 / agents, at least 1,000); < 0: none
+  int64_t plan_max_expansions = 0; // A* expansions per planning call (a work bound); <= 0: none
   bool prioritize_start = true;    // RHCR's prioritize_start
   bool reference_starts = false;   // start cells as the reference draws them (below)
   bool record_paths = false;
@@ -53,6 +54,7 @@ struct SimResult {
   std::vector<int32_t> goal_offsets;    // n_agents + 1: agent a's goals are [off[a], off[a+1])
   std::vector<int32_t> goal_cells, goal_dwell;  // every goal assigned, in order
   std::vector<int32_t> call_nodes;        // per planning call: high-level PBS nodes expanded
+  std::vector<int64_t> call_expansions;   // per planning call: A* expansions
   std::vector<double> call_cpu_seconds;   // per planning call: CPU seconds
   std::vector<uint8_t> call_failed;       // per planning call: 1 if PBS failed (repaired)
   int replans = 0;
