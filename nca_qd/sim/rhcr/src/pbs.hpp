@@ -52,8 +52,8 @@ struct PbsLimits {
   int64_t max_nodes = 0;        // high-level nodes per call; <= 0: none
   double time_limit_s = 60;     // CPU seconds per call; <= 0: none
   // A* expansions per call; <= 0: none. A bound on work, not time: the same call stops at the
-  // same point on any machine and under any load (a jammed call's make_consistent cascades
-  // replan thousands of agents per node, so nodes alone bound it loosely).
+  // same point on any machine and under any load (in a jammed call make_consistent's cascades
+  // replan hundreds of agents per node, so nodes alone bound it loosely).
   int64_t max_expansions = 0;
   std::chrono::steady_clock::time_point deadline = std::chrono::steady_clock::time_point::max();
   bool prioritize_start = true;
