@@ -26,28 +26,23 @@ every step (a random affine bijection of the agent indices, no sort), which avoi
 standing deadlocks in cluttered layouts; ``"age"`` is PIBT's (steps since the last finished
 goal, fixed random tie-break).
 
-How it differs from RHCR in outcome (measured in ``benchmarks/bench_screen.py``, 41 held-out
-33x36 layouts, 200 agents): PIBT keeps traffic moving by pushing agents back, so with RHCR's
-rule alone it almost never congests where windowed PBS collapses (e.g. the human-designed
-warehouse), Spearman 0.38; with the crowding proxy Spearman 0.76 and 81 % agreement on
-congestion per run, 85 % per layout (it is still too pessimistic on random-aisle layouts). At
-101x102 (35 layouts of three domains x 3 seeds, exact RHCR at T=1,000) the rule agrees with
-RHCR's majority verdict on 12 of 13 even-warehouse layouts (1,400 agents) and 10 of 11 uneven
-ones (1,000), but with 1,800 agents it calls every manufacturing layout congested, also the 3
-that RHCR runs at 21-22 (docs/benchmarks.md, "crowding that scales with the map"). Its
-throughput is ~25 % below RHCR's where RHCR runs freely (no lookahead). Rank layouts with it; do not take its
-success/failure verdict as RHCR's.
+How it differs from RHCR in outcome: PIBT keeps traffic moving by pushing agents back, so with
+RHCR's congestion rule alone it almost never congests where windowed PBS collapses (e.g. the
+human-designed warehouse); the crowding proxy is what makes its verdicts track RHCR's. It has
+no lookahead, so its throughput is below RHCR's where RHCR runs freely, and with the crowding
+proxy it is too pessimistic on some layouts (random aisles at 33x36; manufacturing with 1,800
+agents at 101x102). Rank layouts with it; do not take its success/failure verdict as RHCR's.
+Its agreement with RHCR (rank correlation, congestion verdicts per run and per layout, at both
+sizes) is measured by ``benchmarks/bench_screen.py`` and recorded, with dates, in
+docs/benchmarks.md ("Screening simulator").
 
 ``planner="windowed"`` replaces PIBT by RHCR's scheme with windowed PBS replaced by prioritized
 planning in one random order per call (:mod:`nca_qd.sim.screen_windowed`: every h steps each
 agent plans a w=10-step path by a space-time wavefront over its (2w+1)^2 patch, against the
 paths of the agents before it; one that finds none stays; RHCR's congestion rule alone).
-It is experimental and not the default: on 21 held-out 33x36 layouts with exact RHCR results
-(200 agents, T=1,000, 5 seeds; 2026-11-25) it ranks better than PIBT (Spearman 0.83 vs 0.61)
-but agrees on congestion less (65 % per run, 76 % per layout vs 74 % / 90 %): it congests
-far too early (no priority swaps for stuck agents, agents stop at goals inside the window), its
-throughput is 0.75x RHCR's where both flow, and it is about 14x slower than PIBT on the
-50-layout x 5-seed batch.
+It is experimental and not the default: it ranks layouts better than PIBT but agrees on
+congestion less (it congests too early: no priority swaps for stuck agents, agents stop at
+goals inside the window), and it is an order of magnitude slower (docs/benchmarks.md).
 
 Distances (true shortest paths from every goal cell to every cell) are computed in JAX per
 layout by repeated relaxation of all goal cells at once, stored as int16 ``[G, H*W]``.
