@@ -35,19 +35,10 @@ and were not dwelling there) -> congested, stop; throughput = finished tasks / T
 the screen's counter-based streams (the planner looks at an agent's current goal and the
 one after it, drawn from the same stream).
 
-Measured against exact RHCR (``benchmarks/bench_screen.py``'s layouts, 200 agents, T=1,000, 5
-seeds; 2026-11-25, 2-core AMD EPYC shared with a search): on the 27 held-out 33x36 layouts with
-cached RHCR figures (the human, paper and paper-mutant layouts and 10 random-aisle ones),
-Spearman 0.85 of mean throughput, congestion agreement 75 % per run and 82 % per layout,
-throughput 0.89 of RHCR's where both flow; it still congests on every random-aisle layout
-(0 of 50 runs succeed, RHCR 27 of 50). PIBT with the crowding rule on the same layouts:
-Spearman 0.88, 79 % per run, 89 % per layout, throughput 0.69 of RHCR's, in 14 s against the
-windowed planner's 530 s (about 1.5x the single-layer version's). Against exact simulator
-version 3 (26 of those layouts): Spearman 0.79, 76 % per run, 77 % per layout, throughput 0.89
-where both flow. Ordering a call's agents by the rounds they have been stuck (longest first)
-instead of at random was measured and not kept: 0.78, 79 %, 77 %, 0.87; so was RHCR's first goal
-(the cycle's first kind for every agent, instead of a random kind): 0.63, 74 %, 77 %, 0.89. Not
-the screen's default.
+How it compares with exact RHCR and with the PIBT screen (rank correlation, congestion
+agreement, throughput where both flow, speed) and the variants measured and not kept are in
+docs/benchmarks.md ("Screening simulator", ``screen.planner=windowed``). Not the screen's
+default.
 """
 
 from __future__ import annotations

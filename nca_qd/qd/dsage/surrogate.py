@@ -186,9 +186,8 @@ class Surrogate:
         first), in random minibatches drawn with ``seed``. Returns new params, opt state and the
         last epoch's mean loss.
 
-        A host loop over jitted steps: XLA's CPU backend runs convolution gradients ~45x slower
-        inside a ``scan`` / ``while`` body than as a call of their own (0.39 s vs 18 s per step
-        of 64 maze layouts at 64 features, measured 2026-11-25).
+        A host loop over jitted steps: XLA's CPU backend runs convolution gradients far slower
+        inside a ``scan`` / ``while`` body than as a call of their own (docs/benchmarks.md, DSAGE).
         """
         cfg = self.cfg
         count = int(layouts.shape[0])
