@@ -80,6 +80,71 @@ def test_the_package_graph_has_no_cycle():
             visit(unit, [])
 
 
+def module_graph(package: Path = PACKAGE) -> dict[str, dict[str, str]]:
+    """module -> imported module -> "file:line", over every import of the package's modules
+    (``from nca_qd.sim import screen_base`` counts as importing that module)."""
+
+    def name_of(path: Path) -> str:
+        parts = list(path.relative_to(package.parent).with_suffix("").parts)
+        return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+    modules = {name_of(p): p for p in package.rglob("*.py")}
+    graph: dict[str, dict[str, str]] = defaultdict(dict)
+    for here, path in modules.items():
+        rel = path.relative_to(package.parent)
+        for node in ast.walk(ast.parse(path.read_text(), str(rel))):
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                names = [f"{node.module}.{a.name}" for a in node.names]
+                names = [n if n in modules else node.module for n in names]
+            else:
+                continue
+            for there in names:
+                if there in modules and there != here:
+                    graph[here].setdefault(there, f"{rel}:{node.lineno}")
+    return graph
+
+
+def module_cycles(graph: dict[str, dict[str, str]]) -> list[list[str]]:
+    state: dict[str, int] = {}
+    found: list[list[str]] = []
+
+    def visit(module: str, stack: list[str]) -> None:
+        state[module] = 1
+        for nxt in graph.get(module, {}):
+            if state.get(nxt) == 1:
+                found.append(stack[stack.index(nxt) :] + [module, nxt] if nxt in stack else [module, nxt])
+            elif nxt not in state:
+                visit(nxt, stack + [module])
+        state[module] = 2
+
+    for module in list(graph):
+        if module not in state:
+            visit(module, [])
+    return found
+
+
+def test_no_module_imports_a_module_that_imports_it_back():
+    """Within a package too: two modules that import each other (even lazily, inside a
+    function) share internals that belong in a third."""
+    graph = module_graph()
+    cycles = module_cycles(graph)
+    assert not cycles, "; ".join(" -> ".join(c) + f" (e.g. {graph[c[-2]][c[-1]]})" for c in cycles)
+
+
+def test_the_module_check_sees_a_lazy_import_loop(tmp_path):
+    pkg = tmp_path / "nca_qd"
+    (pkg / "sim").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "sim" / "__init__.py").write_text("")
+    (pkg / "sim" / "a.py").write_text("from nca_qd.sim.b import f\n")
+    (pkg / "sim" / "b.py").write_text("def f():\n    from nca_qd.sim import a\n")
+    graph = module_graph(pkg)
+    assert graph["nca_qd.sim.b"] == {"nca_qd.sim.a": "nca_qd/sim/b.py:2"}
+    assert module_cycles(graph) == [["nca_qd.sim.a", "nca_qd.sim.b", "nca_qd.sim.a"]]
+
+
 @pytest.mark.parametrize("unit", sorted(FORBIDDEN))
 def test_a_generic_layer_does_not_import_the_layers_above_it(unit):
     graph = import_graph()

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from sim_layouts import MANUFACTURING, WAREHOUSE, bfs_distances, small_warehouses
 
 from nca_qd.errors import NcaQdError
-from nca_qd.sim import screen
+from nca_qd.sim import screen, screen_base
 from nca_qd.sim.checker import check_run, recount_tasks
 from nca_qd.sim.scenario import build_scenario
 from nca_qd.sim.screen import simulate, simulate_batch
@@ -305,7 +305,7 @@ def test_shortcuts_leave_the_pibt_plan_unchanged(monkeypatch):
 
 def _bfs(grid: np.ndarray, goal: int) -> np.ndarray:
     """Independent breadth-first distances from one flat cell (INF16 where unreachable)."""
-    return bfs_distances(grid, goal, screen.INF16)
+    return bfs_distances(grid, goal, screen_base.INF16)
 
 
 @settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -328,7 +328,7 @@ def test_distance_tables_split_over_threads_are_the_same(monkeypatch):
     """Goals split over two threads (each part padded to whole chunks) give the same tables."""
     import jax.numpy as jnp
 
-    monkeypatch.setattr(screen, "DIST_CHUNK", 8)
+    monkeypatch.setattr(screen_base, "DIST_CHUNK", 8)
     monkeypatch.setattr(screen, "_COMPILED", {})
     rng = np.random.default_rng(5)
     grids = rng.random((2, 7, 8)) >= 0.3

@@ -46,7 +46,7 @@ from __future__ import annotations
 import functools
 import math
 
-from nca_qd.sim.screen import DENSITY_K, WINDOW, LayoutArrays, _draw_goal, _hash, _initial_agents, _jax
+from nca_qd.sim.screen_base import DENSITY_K, WINDOW, LayoutArrays, _draw_goal, _hash, _initial_agents, _jax
 
 _MOVES = ((-1, 0), (1, 0), (0, -1), (0, 1))  # up, down, left, right
 
@@ -452,7 +452,7 @@ def plan_window(
     import numpy as np
 
     jax, jnp = _jax()
-    from nca_qd.sim.screen import distance_table
+    from nca_qd.sim.screen_base import distance_table
 
     trav0 = np.asarray(traversable, bool)
     trav = np.zeros((_pad_to(trav0.shape[0], 32), _pad_to(trav0.shape[1], 32)), bool)
