@@ -25,6 +25,26 @@ from nca_qd.run_dir import METRICS_FILE, load_run_config
 
 METRICS = ("qd_score", "coverage")
 
+# The paper's appendix table (QD-score and coverage, mean ± s.e. over 5 runs, α = 5), by this
+# module's group: (domain with its measures, algorithm) -> ((QD-score, s.e.), (coverage, s.e.)).
+PAPER_TABLE = {
+    ("maze (n_walls+path_length)", "cma_mae"): ((22299.00, 612.46), (0.54, 0.01)),
+    ("maze (n_walls+path_length)", "dsage"): ((16446.60, 42.27), (0.40, 0.00)),
+    ("maze (n_walls+path_length)", "map_elites"): ((12446.80, 2207.08), (0.30, 0.05)),
+    ("maze (entropy+path_length)", "cma_mae"): ((12468.20, 342.09), (0.77, 0.02)),
+    ("maze (entropy+path_length)", "dsage"): ((1444.20, 52.60), (0.09, 0.00)),
+    ("maze (entropy+path_length)", "map_elites"): ((9288.80, 590.13), (0.57, 0.04)),
+    ("warehouse_even (entropy+shelf_components)", "cma_mae"): ((20366.07, 653.46), (0.33, 0.01)),
+    ("warehouse_even (entropy+shelf_components)", "dsage"): ((914.60, 33.09), (0.02, 0.00)),
+    ("warehouse_even (entropy+shelf_components)", "map_elites"): ((6893.49, 1291.68), (0.15, 0.03)),
+    ("warehouse_uneven (entropy+shelf_components)", "cma_mae"): ((19985.23, 493.98), (0.33, 0.01)),
+    ("warehouse_uneven (entropy+shelf_components)", "dsage"): ((926.69, 23.42), (0.02, 0.00)),
+    ("warehouse_uneven (entropy+shelf_components)", "map_elites"): ((5906.86, 1027.29), (0.14, 0.02)),
+    ("manufacturing (entropy+n_stations)", "cma_mae"): ((6449.56, 1106.83), (0.18, 0.02)),
+    ("manufacturing (entropy+n_stations)", "dsage"): ((378.33, 4.69), (0.02, 0.00)),
+    ("manufacturing (entropy+n_stations)", "map_elites"): ((2398.99, 422.61), (0.14, 0.02)),
+}
+
 
 @dataclass
 class RunCurve:
@@ -116,17 +136,30 @@ def summarise(curves: Sequence[RunCurve]) -> list[GroupSummary]:
 
 
 def table_markdown(summaries: Sequence[GroupSummary]) -> str:
-    """The paper's appendix table: domain, algorithm, runs, evaluations, QD-score, coverage."""
+    """The paper's appendix table: domain, algorithm, runs, evaluations, QD-score, coverage,
+    and the paper's figures for the same domain and algorithm (— where it has none). A single
+    run has no standard error: its figures stand alone."""
     lines = [
-        "| Domain | Algorithm | Runs (seeds) | Evaluations | QD-score | Archive coverage |",
-        "|---|---|---|---|---|---|",
+        "| Domain | Algorithm | Runs (seeds) | Evaluations | QD-score | Archive coverage "
+        "| Paper: QD-score / coverage (5 runs) |",
+        "|---|---|---|---|---|---|---|",
     ]
     for s in summaries:
         seeds = ",".join(str(r.seed) for r in sorted(s.runs, key=lambda r: r.seed))
         q, c = s.final["qd_score"], s.final["coverage"]
+        if len(s.runs) > 1:
+            ours = f"{q[0]:,.2f} ± {q[1]:,.2f} | {c[0]:.3f} ± {c[1]:.3f}"
+        else:
+            ours = f"{q[0]:,.2f} | {c[0]:.3f}"
+        paper = PAPER_TABLE.get(s.group)
+        theirs = (
+            f"{paper[0][0]:,.2f} ± {paper[0][1]:,.2f} / {paper[1][0]:.2f} ± {paper[1][1]:.2f}"
+            if paper
+            else "—"
+        )
         lines.append(
-            f"| {s.group[0]} | {s.group[1]} | {len(s.runs)} ({seeds}) | {s.evaluations:,.0f} | "
-            f"{q[0]:,.2f} ± {q[1]:,.2f} | {c[0]:.3f} ± {c[1]:.3f} |"
+            f"| {s.group[0]} | {s.group[1]} | {len(s.runs)} ({seeds}) | {s.evaluations:,.0f} "
+            f"| {ours} | {theirs} |"
         )
     return "\n".join(lines) + "\n"
 

@@ -31,7 +31,10 @@ def test_runs_are_grouped_and_summarised_as_mean_and_standard_error(tmp_path):
     assert rows[0].startswith("| maze (entropy+path_length) | dsage | 1 (0)")
     assert rows[1].startswith("| maze (n_walls+path_length) | cma_mae | 2 (0,1) | 300 |")
     assert "40.00 ± 10.00" in rows[1] and "0.400 ± 0.100" in rows[1]
-    assert rows[2].startswith("| maze (n_walls+path_length) | dsage | 1 (0) | 864 | 40.00 ± 0.00")
+    assert rows[2].startswith("| maze (n_walls+path_length) | dsage | 1 (0) | 864 | 40.00 | 0.400 |")
+    # the paper's row beside ours (its appendix table), none for a group it did not run
+    assert rows[1].endswith("| 22,299.00 ± 612.46 / 0.54 ± 0.01 |")
+    assert rows[0].endswith("| 1,444.20 ± 52.60 / 0.09 ± 0.00 |")
 
 
 def test_a_curve_is_what_the_archive_held_after_each_iteration(tmp_path):
