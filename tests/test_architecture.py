@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import ast
 from collections import defaultdict
+from collections.abc import Mapping
 from pathlib import Path
 
 import pytest
@@ -62,22 +63,10 @@ def import_graph() -> dict[str, dict[str, list[str]]]:
 
 def test_the_package_graph_has_no_cycle():
     graph = import_graph()
-    state: dict[str, int] = {}
-
-    def visit(unit: str, stack: list[str]) -> None:
-        state[unit] = 1
-        for nxt in graph.get(unit, {}):
-            if state.get(nxt) == 1:
-                cycle = stack[stack.index(nxt) :] + [unit, nxt] if nxt in stack else [unit, nxt]
-                where = graph[unit][nxt][0]
-                pytest.fail(f"import cycle {' -> '.join(cycle)} (e.g. {where})")
-            if nxt not in state:
-                visit(nxt, stack + [unit])
-        state[unit] = 2
-
-    for unit in list(graph):
-        if unit not in state:
-            visit(unit, [])
+    found = cycles(graph)
+    assert not found, "; ".join(
+        "import cycle " + " -> ".join(c) + f" (e.g. {graph[c[-2]][c[-1]][0]})" for c in found
+    )
 
 
 def module_graph(package: Path = PACKAGE) -> dict[str, dict[str, str]]:
@@ -106,7 +95,8 @@ def module_graph(package: Path = PACKAGE) -> dict[str, dict[str, str]]:
     return graph
 
 
-def module_cycles(graph: dict[str, dict[str, str]]) -> list[list[str]]:
+def cycles(graph: Mapping[str, Mapping[str, object]]) -> list[list[str]]:
+    """Every cycle a depth-first walk of ``graph`` (node -> the nodes it imports) runs into."""
     state: dict[str, int] = {}
     found: list[list[str]] = []
 
@@ -129,8 +119,8 @@ def test_no_module_imports_a_module_that_imports_it_back():
     """Within a package too: two modules that import each other (even lazily, inside a
     function) share internals that belong in a third."""
     graph = module_graph()
-    cycles = module_cycles(graph)
-    assert not cycles, "; ".join(" -> ".join(c) + f" (e.g. {graph[c[-2]][c[-1]]})" for c in cycles)
+    found = cycles(graph)
+    assert not found, "; ".join(" -> ".join(c) + f" (e.g. {graph[c[-2]][c[-1]]})" for c in found)
 
 
 def test_the_module_check_sees_a_lazy_import_loop(tmp_path):
@@ -142,7 +132,7 @@ def test_the_module_check_sees_a_lazy_import_loop(tmp_path):
     (pkg / "sim" / "b.py").write_text("def f():\n    from nca_qd.sim import a\n")
     graph = module_graph(pkg)
     assert graph["nca_qd.sim.b"] == {"nca_qd.sim.a": "nca_qd/sim/b.py:2"}
-    assert module_cycles(graph) == [["nca_qd.sim.a", "nca_qd.sim.b", "nca_qd.sim.a"]]
+    assert cycles(graph) == [["nca_qd.sim.a", "nca_qd.sim.b", "nca_qd.sim.a"]]
 
 
 @pytest.mark.parametrize("unit", sorted(FORBIDDEN))
