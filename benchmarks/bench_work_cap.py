@@ -42,6 +42,7 @@ def _layouts(run_dir: str, n_jammed: int, n_flowing: int, seed: int) -> list[tup
 
 
 def main(argv: list[str] | None = None) -> None:
+    from nca_qd.io import array_to_rows
     from nca_qd.repair import tiles_of
     from nca_qd.run_dir import load_run_config
     from nca_qd.sim.rhcr import simulate
@@ -59,7 +60,7 @@ def main(argv: list[str] | None = None) -> None:
     caps: list[int | None] = [None, *(int(c) for c in args.caps.split(","))]
     runs: dict[tuple[int, int], dict] = collections.defaultdict(dict)
     for j, (lay, memo) in enumerate(_layouts(args.run_dir, args.jammed, args.flowing, args.draw_seed)):
-        rows = ["".join(tiles[i] for i in r) for r in lay]
+        rows = array_to_rows(lay, tiles)
         for cap in caps:
             for s in range(args.seeds):
                 r = simulate(
