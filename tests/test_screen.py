@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from sim_layouts import MANUFACTURING, WAREHOUSE, bfs_distances, small_warehouses
 
 from nca_qd.errors import NcaQdError
-from nca_qd.sim import screen, screen_base
+from nca_qd.sim import screen, screen_base, screen_pibt
 from nca_qd.sim.checker import check_run, recount_tasks
 from nca_qd.sim.scenario import build_scenario
 from nca_qd.sim.screen import simulate, simulate_batch
@@ -190,7 +190,7 @@ def _top_blocks_mean(cells: np.ndarray, shape: tuple[int, int], rank: int) -> fl
     """Independent check: the mean agent count of the ``rank`` most crowded 5x5 blocks."""
     grid = np.zeros(shape, int)
     np.add.at(grid, (cells[:, 0], cells[:, 1]), 1)
-    k = screen.DENSITY_K
+    k = screen_base.DENSITY_K
     blocks = np.lib.stride_tricks.sliding_window_view(grid, (k, k)).sum((-1, -2))
     return float(np.sort(blocks.ravel())[::-1][:rank].mean())
 
@@ -256,7 +256,7 @@ def test_goals_drawn_in_small_rounds_equal_one_round(monkeypatch):
     """draw_done draws the new goals of the agents that finished one in rounds of DRAW_ROUND;
     rounds of one agent (many rounds per step) must give exactly the same run."""
     one = simulate(WAREHOUSE, "warehouse_even", N, T, 5, record_paths=True)
-    monkeypatch.setattr(screen, "DRAW_ROUND", 1)
+    monkeypatch.setattr(screen_pibt, "DRAW_ROUND", 1)
     monkeypatch.setattr(screen, "_COMPILED", {})
     monkeypatch.setattr(screen, "_EXECUTABLES", {})
     small = simulate(WAREHOUSE, "warehouse_even", N, T, 5, record_paths=True)
@@ -292,8 +292,8 @@ def test_shortcuts_leave_the_pibt_plan_unchanged(monkeypatch):
     followers and blocked candidates all occur."""
     n = 3 * N
     fast = simulate(WAREHOUSE, "warehouse_even", n, T, 3, record_paths=True)
-    monkeypatch.setattr(screen, "PREDECIDE", False)
-    monkeypatch.setattr(screen, "ROOT_LOOKAHEAD", 1)
+    monkeypatch.setattr(screen_pibt, "PREDECIDE", False)
+    monkeypatch.setattr(screen_pibt, "ROOT_LOOKAHEAD", 1)
     monkeypatch.setattr(screen, "_COMPILED", {})
     monkeypatch.setattr(screen, "_EXECUTABLES", {})
     plain = simulate(WAREHOUSE, "warehouse_even", n, T, 3, record_paths=True)

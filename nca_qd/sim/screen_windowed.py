@@ -279,7 +279,7 @@ def run_batch(
     window: int = WINDOW,
 ):
     """All runs in lock-step (run ``r``: layout ``lidx[r]``, seed ``seeds[r]``); the same
-    results dictionary as :func:`nca_qd.sim.screen._run_batch`."""
+    results dictionary as :func:`nca_qd.sim.screen_pibt.run_batch`."""
     jax, jnp = _jax()
     lax = jax.lax
     vmap = jax.vmap
