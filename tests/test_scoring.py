@@ -19,7 +19,8 @@ from hypothesis import strategies as st
 from experiments.cli import compose_config
 from nca_qd.errors import NcaQdError
 from nca_qd.scoring.backend import JobFailed, LocalBackend, make_backend, map_jobs
-from nca_qd.scoring.mapf import ScoringConfig, choose_exact
+from nca_qd.scoring.mapf import choose_exact
+from nca_qd.scoring.settings import ScoringConfig
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -59,16 +59,14 @@ from nca_qd.interfaces import EvalBatch, ScoringContext, wants_ancillary
 from nca_qd.io import array_to_rows
 from nca_qd.scoring.backend import JobFailed, make_backend, map_jobs
 from nca_qd.scoring.memo import MEMO_FILE, EvalMemo, first_of_each, layout_key
+from nca_qd.scoring.settings import ScoringConfig
 from nca_qd.scoring.tasks import ExactOutcome, RepairOutcome, repair_options, repair_task, rhcr_task
-from nca_qd.sim.free_flow import CONGESTED_MODEL_V3, free_flow_throughput, rhcr_estimate
+from nca_qd.sim.free_flow import free_flow_throughput, rhcr_estimate
 from nca_qd.sim.rhcr import VERSION as RHCR_VERSION
-from nca_qd.sim.rhcr import planner_options
 from nca_qd.sim.screen import crowd_mean_for
 
 log = logging.getLogger(__name__)
 
-EXACT_POLICIES = ("selective", "all")
-SCREEN_ESTIMATES = ("scaled", "free_flow")
 # Exact runs that flowed before the search's own calibrate the free-flow estimate's efficiency
 # (until then the configured prior holds).
 MIN_CALIBRATION_RUNS = 50
@@ -86,81 +84,6 @@ METRIC_NAMES = (
     "screen_seconds",
     "exact_seconds",
 )
-
-
-@dataclass(frozen=True)
-class ScoringConfig:
-    """The ``eval`` block of a run config, validated (backend keys are read by the backend)."""
-
-    screen: bool = True
-    exact: str = "selective"
-    screen_scale: float = 1.3
-    # scaled: screened throughput x screen_scale; free_flow: nca_qd.sim.free_flow.rhcr_estimate.
-    # The default of a config without the key is the estimate runs made before it existed used.
-    screen_estimate: str = "scaled"
-    screen_efficiency: float = 0.932
-    # (free_flow) a + b * screened throughput / free flow + c * stop time / T: RHCR's share of
-    # free flow on a layout with a congested screened run; a config without the key gets the
-    # fit its run was started with (against exact simulator version 3)
-    screen_congested: tuple[float, float, float] = CONGESTED_MODEL_V3
-    exact_margin: float = 0.1
-    exact_random_share: float = 0.1
-    exact_time_limit_s: float | None = None
-    screen_empty_cells: bool = False
-    memo: bool = True
-    # exact planner knobs (plan_time_limit_s, pbs_max_nodes, prioritize_start) for the search's
-    # runs; missing keys keep RHCR's defaults as the paper ran it
-    planner: dict[str, Any] = field(default_factory=dict)
-
-    @classmethod
-    def from_cfg(cls, cfg: Mapping[str, Any] | None) -> ScoringConfig:
-        cfg = dict(cfg or {})
-        exact = str(cfg.get("exact", "selective"))
-        if exact not in EXACT_POLICIES:
-            raise NcaQdError(f"eval.exact must be one of {', '.join(EXACT_POLICIES)}, got {exact!r}")
-        estimate = str(cfg.get("screen_estimate", "scaled"))
-        if estimate not in SCREEN_ESTIMATES:
-            raise NcaQdError(
-                f"eval.screen_estimate must be one of {', '.join(SCREEN_ESTIMATES)}, got {estimate!r}"
-            )
-        for name in ("screen", "screen_empty_cells", "memo"):
-            if name in cfg and not isinstance(cfg[name], bool):
-                raise NcaQdError(f"eval.{name} must be true or false, got {cfg[name]!r}")
-        screen = bool(cfg.get("screen", True))
-        out = cls(
-            screen=screen,
-            exact=exact if screen else "all",
-            screen_scale=float(cfg.get("screen_scale", 1.3)),
-            screen_estimate=estimate,
-            screen_efficiency=float(cfg.get("screen_efficiency", 0.932)),
-            screen_congested=_three_numbers(cfg.get("screen_congested", CONGESTED_MODEL_V3)),
-            exact_margin=float(cfg.get("exact_margin", 0.1)),
-            exact_random_share=float(cfg.get("exact_random_share", 0.1)),
-            exact_time_limit_s=(
-                None if cfg.get("exact_time_limit_s") is None else float(cfg["exact_time_limit_s"])
-            ),
-            screen_empty_cells=bool(cfg.get("screen_empty_cells", False)),
-            memo=bool(cfg.get("memo", True)),
-            planner=planner_options(cfg, "eval."),
-        )
-        if not 0.0 <= out.exact_random_share <= 1.0:
-            raise NcaQdError(f"eval.exact_random_share must be in [0, 1], got {out.exact_random_share}")
-        if out.screen_scale <= 0:
-            raise NcaQdError(f"eval.screen_scale must be positive, got {out.screen_scale}")
-        if not 0.0 < out.screen_efficiency <= 1.0:
-            raise NcaQdError(f"eval.screen_efficiency must be in (0, 1], got {out.screen_efficiency}")
-        return out
-
-
-def _three_numbers(value: Any) -> tuple[float, float, float]:
-    """``eval.screen_congested`` as ``(a, b, c)``: three finite numbers."""
-    try:
-        out = tuple(float(v) for v in value)
-    except (TypeError, ValueError):
-        out = ()
-    if len(out) != 3 or not all(np.isfinite(out)):
-        raise NcaQdError(f"eval.screen_congested must be three finite numbers [a, b, c], got {value!r}")
-    return out  # type: ignore[return-value]
 
 
 def choose_exact(
