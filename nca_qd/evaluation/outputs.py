@@ -79,11 +79,42 @@ def write_outputs(
     plan: Plan,
 ):
     """Every CSV and PNG, the summary table (CSV and Markdown); returns (rows, markdown)."""
+    from nca_qd.io import atomic_write_text
+
+    tiles = domain.layout_tiles
+    _write_layouts(out, name, layouts, tiles, domain.palette)
+    _write_runs(out, layouts, results)
+    T = int(e["T"])
+    stat_rows: dict[str, list[dict[str, Any]]] = {}
+    for r in requests:
+        for sim, outs in request_runs(results, r).items():
+            stat_rows.setdefault(r.purpose, []).append(
+                {
+                    **layout_cols(layouts[r.layout]),
+                    "n_agents": r.n_agents,
+                    "simulator": sim,
+                    **run_stats(outs),
+                }
+            )
+    for which in ("train", "eval"):
+        _write_sweep(out, which, name, stat_rows.get(f"sweep_{which}", []), T)
+        _write_detail(out, which, name, layouts, requests, results, T, int(e["tasks_smooth"]), tiles)
+    _write_sizes(out, stat_rows.get("sizes", []))
+    summary = summary_rows(name, layouts, requests, results, plan)
+    write_csv(out / "summary.csv", summary, list(summary[0]) if summary else ["layout"])
+    md = summary_markdown(name, summary, T)
+    atomic_write_text(out / "summary.md", md)
+    return summary, md
+
+
+_CURVE_COLUMNS = LAYOUT_COLUMNS + ["n_agents", "simulator"] + STAT_COLUMNS
+
+
+def _write_layouts(out: Path, name: str, layouts: dict[str, EvalLayout], tiles, palette) -> None:
+    """Each layout as a map file (and its unrepaired version), layouts.csv, a picture per size."""
     from nca_qd.io import MapFile, array_to_rows, save_map
     from nca_qd.viz import render_layouts
 
-    tiles = domain.layout_tiles
-    # layouts: files, pictures, generation and repair figures
     lay_rows = [layout_record(l, name, tiles) for l in layouts.values()]
     for lay in layouts.values():
         stem = lay.key.replace("@", "_")
@@ -105,10 +136,13 @@ def write_outputs(
                 out / f"layouts_{size}.png",
                 [l.layout for l in shown],
                 tiles,
-                domain.palette,
+                palette,
                 [f"{l.label} {l.size}" for l in shown],
             )
-    # every run
+
+
+def _write_runs(out: Path, layouts: dict[str, EvalLayout], results: Results) -> None:
+    """runs.csv: every run of every layout, agent count and simulator."""
     run_rows = []
     for (key, n, sim), outs in results.items():
         for o in outs:
@@ -142,60 +176,46 @@ def write_outputs(
             "error",
         ],
     )
-    stat_rows: dict[str, list[dict[str, Any]]] = {}
-    for r in requests:
-        for sim, outs in request_runs(results, r).items():
-            stat_rows.setdefault(r.purpose, []).append(
-                {
-                    **layout_cols(layouts[r.layout]),
-                    "n_agents": r.n_agents,
-                    "simulator": sim,
-                    **run_stats(outs),
-                }
-            )
-    curve_cols = LAYOUT_COLUMNS + ["n_agents", "simulator"] + STAT_COLUMNS
-    T = int(e["T"])
-    for which in ("train", "eval"):
-        rows = stat_rows.get(f"sweep_{which}", [])
-        if rows:
-            stem = f"throughput_vs_agents_{which}"
-            write_csv(out / f"{stem}.csv", rows, curve_cols)
-            plot_curves(
-                out / f"{stem}.png",
-                rows,
-                "n_agents",
-                f"{name}: throughput vs agents at {rows[0]['size']} (T={T})",
-                "agents",
-            )
-        _write_detail(out, which, name, layouts, requests, results, T, int(e["tasks_smooth"]), tiles)
-    size_rows = stat_rows.get("sizes", [])
-    if size_rows:
-        write_csv(out / "scaling_sizes_grid.csv", size_rows, curve_cols)
-        peak = peaks(size_rows)
-        write_csv(
-            out / "scaling_sizes.csv",
-            peak,
-            [
-                "layout",
-                "kind",
-                "cell",
-                "size",
-                "simulator",
-                "agents_tried",
-                "max_throughput_mean",
-                "max_throughput_se",
-                "agents_at_max",
-                "success_rate_at_max",
-            ],
-        )
-        plot_sizes(out / "scaling_sizes.png", peak)
-    summary = summary_rows(name, layouts, requests, results, plan)
-    write_csv(out / "summary.csv", summary, list(summary[0]) if summary else ["layout"])
-    md = summary_markdown(name, summary, T)
-    from nca_qd.io import atomic_write_text
 
-    atomic_write_text(out / "summary.md", md)
-    return summary, md
+
+def _write_sweep(out: Path, which: str, name: str, rows: list[dict[str, Any]], T: int) -> None:
+    """Throughput against agents at the training (S) or evaluation (S_eval) size: CSV and PNG."""
+    if not rows:
+        return
+    stem = f"throughput_vs_agents_{which}"
+    write_csv(out / f"{stem}.csv", rows, _CURVE_COLUMNS)
+    plot_curves(
+        out / f"{stem}.png",
+        rows,
+        "n_agents",
+        f"{name}: throughput vs agents at {rows[0]['size']} (T={T})",
+        "agents",
+    )
+
+
+def _write_sizes(out: Path, size_rows: list[dict[str, Any]]) -> None:
+    """Throughput over map sizes: every point, each layout's peak per size, its picture."""
+    if not size_rows:
+        return
+    write_csv(out / "scaling_sizes_grid.csv", size_rows, _CURVE_COLUMNS)
+    peak = peaks(size_rows)
+    write_csv(
+        out / "scaling_sizes.csv",
+        peak,
+        [
+            "layout",
+            "kind",
+            "cell",
+            "size",
+            "simulator",
+            "agents_tried",
+            "max_throughput_mean",
+            "max_throughput_se",
+            "agents_at_max",
+            "success_rate_at_max",
+        ],
+    )
+    plot_sizes(out / "scaling_sizes.png", peak)
 
 
 def _write_detail(
