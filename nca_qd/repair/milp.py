@@ -105,6 +105,261 @@ class _Rows:
         self.upper.append(hi)
 
 
+@dataclass
+class _Graph:
+    """A window's MILP layout: its cells, the flow graph contracted over the outside
+    traversable components (super nodes), and where each block of columns starts."""
+
+    cells: list[tuple[int, int]]
+    cid: np.ndarray  # [h, w] window cell index, -1 outside
+    free: list[int]  # the tiles a window cell may take (column k of a cell is free[k])
+    pass_k: list[int]  # the passable ones among them
+    touched: list[int]  # labels of the outside components the window touches
+    edges: list[tuple[int, int]]  # directed edges between cells and super nodes
+    n_nodes: int
+
+    @property
+    def n(self) -> int:
+        return len(self.cells)
+
+    @property
+    def K(self) -> int:
+        return len(self.free)
+
+    @property
+    def big_n(self) -> float:
+        return float(self.n_nodes)
+
+    @property
+    def use_source_vars(self) -> bool:  # no outside component: the source is chosen in the window
+        return not self.touched
+
+    @property
+    def source(self) -> int | None:  # the first outside component
+        return None if self.use_source_vars else self.n
+
+    @property
+    def n_x(self) -> int:
+        return self.n * self.K
+
+    @property
+    def f0(self) -> int:
+        return self.n_x
+
+    @property
+    def y0(self) -> int:
+        return self.f0 + len(self.edges)
+
+    @property
+    def s0(self) -> int:
+        return self.y0 + (self.n if self.use_source_vars else 0)
+
+    @property
+    def n_cols(self) -> int:
+        return self.s0 + (self.n if self.use_source_vars else 0)
+
+    def xcol(self, i: int, k: int) -> int:
+        return i * self.K + k
+
+
+def _window_graph(current: np.ndarray, window: np.ndarray, rules: Rules) -> _Graph | None:
+    """The window's graph, or None when an outside traversable region cannot be reached from
+    the window (no repair inside the window can connect it)."""
+    h, w = current.shape
+    cells = [tuple(map(int, rc)) for rc in np.argwhere(window)]
+    n = len(cells)
+    cid = -np.ones((h, w), dtype=np.int64)
+    for i, (r, c) in enumerate(cells):
+        cid[r, c] = i
+    free = list(rules.free_tiles)
+    pass_k = [k for k, t in enumerate(free) if t in rules.passable]
+    # Outside passable components -> super nodes.
+    outside_pass = rules.passable_mask(current) & ~window
+    labels, n_lab = ndimage.label(outside_pass, structure=_FOUR)
+    touches: list[set[int]] = [set() for _ in range(n)]
+    for i, (r, c) in enumerate(cells):
+        for rr, cc in neighbours(r, c, h, w):
+            if labels[rr, cc] > 0:
+                touches[i].add(int(labels[rr, cc]))
+    touched = sorted(set().union(*touches)) if n else []
+    if n_lab > len(touched):
+        return None
+    super_of = {lab: n + s for s, lab in enumerate(touched)}
+    # Directed edges of the contracted graph.
+    edges: list[tuple[int, int]] = []
+    for i, (r, c) in enumerate(cells):
+        for rr, cc in neighbours(r, c, h, w):
+            j = cid[rr, cc]
+            if j >= 0:
+                edges.append((i, int(j)))
+        for lab in sorted(touches[i]):
+            s = super_of[lab]
+            edges.append((i, s))
+            edges.append((s, i))
+    return _Graph(cells, cid, free, pass_k, touched, edges, n + len(touched))
+
+
+def _columns(g: _Graph, layout_in: np.ndarray, rules: Rules):
+    """Objective (weighted Hamming distance to ``layout_in``, as an offset minus the kept
+    cells' weights), bounds and integrality of every column."""
+    k_of = {t: k for k, t in enumerate(g.free)}
+    weights = rules.objective_weights(layout_in)
+    cost = np.zeros(g.n_cols)
+    offset = 0.0
+    for i, (r, c) in enumerate(g.cells):
+        wgt = float(weights[r, c])
+        offset += wgt
+        k = k_of.get(int(layout_in[r, c]))
+        if k is not None:
+            cost[g.xcol(i, k)] = -wgt
+    lower = np.zeros(g.n_cols)
+    upper = np.ones(g.n_cols)
+    upper[g.f0 : g.f0 + len(g.edges)] = g.big_n
+    integrality = np.zeros(g.n_cols, dtype=np.int32)
+    integrality[: g.n_x] = 1
+    if g.use_source_vars:
+        upper[g.s0 : g.s0 + g.n] = g.big_n
+        integrality[g.y0 : g.y0 + g.n] = 1
+    return cost, lower, upper, integrality, offset
+
+
+def _tile_and_flow_rows(g: _Graph, rows: _Rows) -> None:
+    """One tile per cell; a single-commodity flow from the source reaching every passable
+    cell and every outside component (connectivity)."""
+    inf = highspy.kHighsInf
+    n, K, big_n, pass_k, xcol = g.n, g.K, g.big_n, g.pass_k, g.xcol
+    for i in range(n):
+        rows.add([xcol(i, k) for k in range(K)], [1.0] * K, 1.0, 1.0)
+    # Flow capacities: nothing leaves or enters a blocking window cell.
+    for e, (a, b) in enumerate(g.edges):
+        for node in (a, b):
+            if node < n:
+                rows.add(
+                    [g.f0 + e] + [xcol(node, k) for k in pass_k], [1.0] + [-big_n] * len(pass_k), -inf, 0.0
+                )
+    # Conservation: in - out (+ supply) = demand.
+    inc: list[list[int]] = [[] for _ in range(g.n_nodes)]
+    out: list[list[int]] = [[] for _ in range(g.n_nodes)]
+    for e, (a, b) in enumerate(g.edges):
+        out[a].append(g.f0 + e)
+        inc[b].append(g.f0 + e)
+    for v in range(g.n_nodes):
+        if v == g.source:
+            continue
+        cols = inc[v] + out[v]
+        vals = [1.0] * len(inc[v]) + [-1.0] * len(out[v])
+        if v < n:
+            cols = cols + [xcol(v, k) for k in pass_k]
+            vals = vals + [-1.0] * len(pass_k)
+            if g.use_source_vars:
+                cols.append(g.s0 + v)
+                vals.append(1.0)
+            rows.add(cols, vals, 0.0, 0.0)
+        else:
+            rows.add(cols, vals, 1.0, 1.0)
+    if g.use_source_vars:
+        y0, s0 = g.y0, g.s0
+        rows.add([y0 + i for i in range(n)], [1.0] * n, 1.0, 1.0)
+        for i in range(n):
+            rows.add([s0 + i, y0 + i], [1.0, -big_n], -inf, 0.0)
+            rows.add([y0 + i] + [xcol(i, k) for k in pass_k], [1.0] + [-1.0] * len(pass_k), -inf, 0.0)
+        all_pass = [xcol(i, k) for i in range(n) for k in pass_k]
+        rows.add([s0 + i for i in range(n)] + all_pass, [1.0] * n + [-1.0] * len(all_pass), 0.0, 0.0)
+
+
+def _rule_rows(g: _Graph, current: np.ndarray, window: np.ndarray, rules: Rules, rows: _Rows) -> None:
+    """The domain's adjacency rules on the window's cells and the fixed cells around them, and
+    its count rules (the window makes up what the fixed part lacks)."""
+    inf = highspy.kHighsInf
+    h, w = current.shape
+    ring = np.zeros((h, w), dtype=bool)
+    ring[1:, :] |= window[:-1, :]
+    ring[:-1, :] |= window[1:, :]
+    ring[:, 1:] |= window[:, :-1]
+    ring[:, :-1] |= window[:, 1:]
+    ring &= ~window
+    check_cells = g.cells + [tuple(map(int, rc)) for rc in np.argwhere(ring)]
+    for rule in rules.adjacency:
+        a_k = [k for k, t in enumerate(g.free) if t in rule.tiles]
+        b_k = [k for k, t in enumerate(g.free) if t in rule.needs]
+        for r, c in check_cells:
+            i = g.cid[r, c]
+            cols: list[int] = []
+            vals: list[float] = []
+            if i >= 0:
+                cols += [g.xcol(int(i), k) for k in a_k]
+                vals += [1.0] * len(a_k)
+                a_const = 0.0
+            else:
+                if int(current[r, c]) not in rule.tiles:
+                    continue
+                a_const = 1.0
+            b_const = 0.0
+            for rr, cc in neighbours(r, c, h, w):
+                j = g.cid[rr, cc]
+                if j >= 0:
+                    cols += [g.xcol(int(j), k) for k in b_k]
+                    vals += [-1.0] * len(b_k)
+                elif int(current[rr, cc]) in rule.needs:
+                    b_const += 1.0
+            if not cols:
+                continue
+            rows.add(cols, vals, -inf, b_const - a_const)
+    for rule in rules.counts:
+        outside = int((np.isin(current, list(rule.tiles)) & ~window).sum())
+        t_k = [k for k, t in enumerate(g.free) if t in rule.tiles]
+        cols = [g.xcol(i, k) for i in range(g.n) for k in t_k]
+        need = float(rule.value - outside)
+        hi = need if rule.op == "==" else inf
+        rows.add(cols, [1.0] * len(cols), need, hi)
+
+
+def _options(hs, time_limit, threads, seed, max_nodes, check_limit, relaxation, iteration_limit) -> None:
+    """HiGHS's limits (work limits where set) and what a solve proves."""
+    hs.setOptionValue("time_limit", max(0.05, float(time_limit)))
+    hs.setOptionValue("threads", int(threads))
+    hs.setOptionValue("random_seed", int(seed))
+    if max_nodes is not None:
+        hs.setOptionValue("mip_max_nodes", int(max_nodes))
+    if check_limit is not None:
+        _stop_after_checks(hs, int(check_limit))
+    hs.setOptionValue("mip_rel_gap", 0.0)
+    # Integer weights: a gap below 1 proves optimality.
+    hs.setOptionValue("mip_abs_gap", 0.999)
+    if relaxation:
+        hs.setOptionValue("solve_relaxation", True)
+        hs.setOptionValue("simplex_strategy", 4)  # primal: it starts from the valid layout
+    if iteration_limit is not None:
+        hs.setOptionValue("simplex_iteration_limit", int(iteration_limit))
+
+
+def _load(hs, columns, rows: _Rows) -> None:
+    """Columns (objective, bounds, integrality) and rows into ``hs``."""
+    cost, lower, upper, integrality, offset = columns
+    n_cols = len(cost)
+    hs.addCols(
+        n_cols,
+        cost,
+        lower,
+        upper,
+        0,
+        np.array([], dtype=np.int32),
+        np.array([], dtype=np.int32),
+        np.array([], dtype=np.float64),
+    )
+    hs.changeColsIntegrality(n_cols, np.arange(n_cols, dtype=np.int32), integrality)
+    hs.addRows(
+        len(rows.lower),
+        np.array(rows.lower),
+        np.array(rows.upper),
+        len(rows.index),
+        np.array(rows.starts, dtype=np.int32),
+        np.array(rows.index, dtype=np.int32),
+        np.array(rows.value, dtype=np.float64),
+    )
+    hs.changeObjectiveOffset(offset)
+
+
 def solve_window(
     current: np.ndarray,
     layout_in: np.ndarray,
@@ -140,203 +395,35 @@ def solve_window(
     machine, so the result does not depend on the load.
     """
     t0 = time.perf_counter()
-    h, w = current.shape
-    inf = highspy.kHighsInf
     window = window & ~rules.fixed
-    cells = [tuple(map(int, rc)) for rc in np.argwhere(window)]
-    n = len(cells)
-    if n == 0:
-        return WindowResult("infeasible", None, None, time.perf_counter() - t0, 0)
-    cid = -np.ones((h, w), dtype=np.int64)
-    for i, (r, c) in enumerate(cells):
-        cid[r, c] = i
-    free = rules.free_tiles
-    k_of = {t: k for k, t in enumerate(free)}
-    K = len(free)
-    pass_k = [k for k, t in enumerate(free) if t in rules.passable]
-
-    def xcol(i: int, k: int) -> int:
-        return i * K + k
-
-    # Outside passable components -> super nodes.
-    outside_pass = rules.passable_mask(current) & ~window
-    labels, n_lab = ndimage.label(outside_pass, structure=_FOUR)
-    touches: list[set[int]] = [set() for _ in range(n)]
-    for i, (r, c) in enumerate(cells):
-        for rr, cc in neighbours(r, c, h, w):
-            if labels[rr, cc] > 0:
-                touches[i].add(int(labels[rr, cc]))
-    touched = sorted(set().union(*touches)) if n else []
-    if n_lab > len(touched):
-        # An outside traversable region the window cannot reach: no repair inside the window.
+    n = int(window.sum())
+    g = _window_graph(current, window, rules) if n else None
+    if g is None:  # an empty window, or an outside region the window cannot reach
         return WindowResult("infeasible", None, None, time.perf_counter() - t0, n)
-    super_of = {lab: n + s for s, lab in enumerate(touched)}
-    n_nodes = n + len(touched)
-    big_n = float(n_nodes)
-
-    # Directed edges of the contracted graph.
-    edges: list[tuple[int, int]] = []
-    for i, (r, c) in enumerate(cells):
-        for rr, cc in neighbours(r, c, h, w):
-            j = cid[rr, cc]
-            if j >= 0:
-                edges.append((i, int(j)))
-        for lab in sorted(touches[i]):
-            s = super_of[lab]
-            edges.append((i, s))
-            edges.append((s, i))
-
-    n_x = n * K
-    f0 = n_x
-    n_f = len(edges)
-    use_source_vars = not touched
-    y0 = f0 + n_f
-    s0 = y0 + (n if use_source_vars else 0)
-    n_cols = s0 + (n if use_source_vars else 0)
-
-    weights = rules.objective_weights(layout_in)
-    cost = np.zeros(n_cols)
-    offset = 0.0
-    for i, (r, c) in enumerate(cells):
-        wgt = float(weights[r, c])
-        offset += wgt
-        k = k_of.get(int(layout_in[r, c]))
-        if k is not None:
-            cost[xcol(i, k)] = -wgt
-    lower = np.zeros(n_cols)
-    upper = np.ones(n_cols)
-    upper[f0 : f0 + n_f] = big_n
-    if use_source_vars:
-        upper[s0 : s0 + n] = big_n
-    integrality = np.zeros(n_cols, dtype=np.int32)
-    integrality[:n_x] = 1
-    if use_source_vars:
-        integrality[y0 : y0 + n] = 1
-
+    columns = _columns(g, layout_in, rules)
     rows = _Rows()
-    # One tile per cell.
-    for i in range(n):
-        rows.add([xcol(i, k) for k in range(K)], [1.0] * K, 1.0, 1.0)
-    # Flow capacities: nothing leaves or enters a blocking window cell.
-    for e, (a, b) in enumerate(edges):
-        for node in (a, b):
-            if node < n:
-                rows.add(
-                    [f0 + e] + [xcol(node, k) for k in pass_k], [1.0] + [-big_n] * len(pass_k), -inf, 0.0
-                )
-    # Conservation: in - out (+ supply) = demand.
-    inc: list[list[int]] = [[] for _ in range(n_nodes)]
-    out: list[list[int]] = [[] for _ in range(n_nodes)]
-    for e, (a, b) in enumerate(edges):
-        out[a].append(f0 + e)
-        inc[b].append(f0 + e)
-    source = None if use_source_vars else n  # the first outside component
-    for v in range(n_nodes):
-        if v == source:
-            continue
-        cols = inc[v] + out[v]
-        vals = [1.0] * len(inc[v]) + [-1.0] * len(out[v])
-        if v < n:
-            cols = cols + [xcol(v, k) for k in pass_k]
-            vals = vals + [-1.0] * len(pass_k)
-            if use_source_vars:
-                cols.append(s0 + v)
-                vals.append(1.0)
-            rows.add(cols, vals, 0.0, 0.0)
-        else:
-            rows.add(cols, vals, 1.0, 1.0)
-    if use_source_vars:
-        rows.add([y0 + i for i in range(n)], [1.0] * n, 1.0, 1.0)
-        for i in range(n):
-            rows.add([s0 + i, y0 + i], [1.0, -big_n], -inf, 0.0)
-            rows.add([y0 + i] + [xcol(i, k) for k in pass_k], [1.0] + [-1.0] * len(pass_k), -inf, 0.0)
-        all_pass = [xcol(i, k) for i in range(n) for k in pass_k]
-        rows.add([s0 + i for i in range(n)] + all_pass, [1.0] * n + [-1.0] * len(all_pass), 0.0, 0.0)
-
-    # Adjacency rules on window cells and the fixed cells around them.
-    ring = np.zeros((h, w), dtype=bool)
-    ring[1:, :] |= window[:-1, :]
-    ring[:-1, :] |= window[1:, :]
-    ring[:, 1:] |= window[:, :-1]
-    ring[:, :-1] |= window[:, 1:]
-    ring &= ~window
-    check_cells = cells + [tuple(map(int, rc)) for rc in np.argwhere(ring)]
-    for rule in rules.adjacency:
-        a_k = [k for k, t in enumerate(free) if t in rule.tiles]
-        b_k = [k for k, t in enumerate(free) if t in rule.needs]
-        for r, c in check_cells:
-            i = cid[r, c]
-            cols: list[int] = []
-            vals: list[float] = []
-            if i >= 0:
-                cols += [xcol(int(i), k) for k in a_k]
-                vals += [1.0] * len(a_k)
-                a_const = 0.0
-            else:
-                if int(current[r, c]) not in rule.tiles:
-                    continue
-                a_const = 1.0
-            b_const = 0.0
-            for rr, cc in neighbours(r, c, h, w):
-                j = cid[rr, cc]
-                if j >= 0:
-                    cols += [xcol(int(j), k) for k in b_k]
-                    vals += [-1.0] * len(b_k)
-                elif int(current[rr, cc]) in rule.needs:
-                    b_const += 1.0
-            if not cols:
-                continue
-            rows.add(cols, vals, -inf, b_const - a_const)
-    # Count rules: the window makes up what the fixed part lacks.
-    for rule in rules.counts:
-        outside = int((np.isin(current, list(rule.tiles)) & ~window).sum())
-        t_k = [k for k, t in enumerate(free) if t in rule.tiles]
-        cols = [xcol(i, k) for i in range(n) for k in t_k]
-        need = float(rule.value - outside)
-        hi = need if rule.op == "==" else inf
-        rows.add(cols, [1.0] * len(cols), need, hi)
-
+    _tile_and_flow_rows(g, rows)
+    _rule_rows(g, current, window, rules, rows)
     hs = quiet_highs()
-    hs.setOptionValue("time_limit", max(0.05, float(time_limit)))
-    hs.setOptionValue("threads", int(threads))
-    hs.setOptionValue("random_seed", int(seed))
-    if max_nodes is not None:
-        hs.setOptionValue("mip_max_nodes", int(max_nodes))
-    if check_limit is not None:
-        _stop_after_checks(hs, int(check_limit))
-    hs.setOptionValue("mip_rel_gap", 0.0)
-    # Integer weights: a gap below 1 proves optimality.
-    hs.setOptionValue("mip_abs_gap", 0.999)
-    if relaxation:
-        hs.setOptionValue("solve_relaxation", True)
-        hs.setOptionValue("simplex_strategy", 4)  # primal: it starts from the valid layout
-    if iteration_limit is not None:
-        hs.setOptionValue("simplex_iteration_limit", int(iteration_limit))
-    hs.addCols(
-        n_cols,
-        cost,
-        lower,
-        upper,
-        0,
-        np.array([], dtype=np.int32),
-        np.array([], dtype=np.int32),
-        np.array([], dtype=np.float64),
-    )
-    hs.changeColsIntegrality(n_cols, np.arange(n_cols, dtype=np.int32), integrality)
-    n_rows = len(rows.lower)
-    hs.addRows(
-        n_rows,
-        np.array(rows.lower),
-        np.array(rows.upper),
-        len(rows.index),
-        np.array(rows.starts, dtype=np.int32),
-        np.array(rows.index, dtype=np.int32),
-        np.array(rows.value, dtype=np.float64),
-    )
-    hs.changeObjectiveOffset(offset)
+    _options(hs, time_limit, threads, seed, max_nodes, check_limit, relaxation, iteration_limit)
+    _load(hs, columns, rows)
+    n_x, K, integrality = g.n_x, g.K, columns[3]
     if warm_start:
         start = _warm_start(
-            current, cells, cid, edges, n, n_nodes, source, free, rules, K, n_cols, f0, y0, s0
+            current,
+            g.cells,
+            g.cid,
+            g.edges,
+            n,
+            g.n_nodes,
+            g.source,
+            g.free,
+            rules,
+            K,
+            g.n_cols,
+            g.f0,
+            g.y0,
+            g.s0,
         )
         if start is not None:
             sol = highspy.HighsSolution()
@@ -348,7 +435,7 @@ def solve_window(
     seconds = time.perf_counter() - t0
     has_solution = info.primal_solution_status == 2  # kSolutionStatusFeasible
     if relaxation:
-        return _relaxed(hs, status, current, cells, layout_in, rules, n_x, K, integrality, t0)
+        return _relaxed(hs, status, current, g.cells, layout_in, rules, n_x, K, integrality, t0)
     bound = distance_bound(info.mip_dual_bound, rules.tie_costs is not None)
     nodes = int(info.mip_node_count)
     if status == highspy.HighsModelStatus.kInfeasible:
@@ -356,7 +443,7 @@ def solve_window(
     if not has_solution:
         return WindowResult("timeout", None, None, seconds, n, bound, nodes)
     values = np.asarray(hs.getSolution().col_value)
-    new, distance = _layout_of(values, current, cells, layout_in, rules, n_x, K)
+    new, distance = _layout_of(values, current, g.cells, layout_in, rules, n_x, K)
     label = "optimal" if status == highspy.HighsModelStatus.kOptimal else "feasible"
     return WindowResult(label, new, distance, seconds, n, bound, nodes)
 
