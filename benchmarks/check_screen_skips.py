@@ -178,7 +178,11 @@ def main(argv: list[str] | None = None) -> None:
     out = Path(args.out)
     done = {}
     if out.is_file():
-        done = {r["key"]: r for r in map(json.loads, out.read_text().splitlines()) if r.strip()}
+        lines = [line for line in out.read_text().splitlines() if line.strip()]
+        try:
+            done = {r["key"]: r for r in map(json.loads, lines)}
+        except json.JSONDecodeError:  # a line cut short by a stop: drop it, keep the rest
+            done = {r["key"]: r for r in map(json.loads, lines[:-1])}
     print(
         f"{run}: {len(pool)} skipped layouts ({sum(math.isfinite(p['elite']) for p in pool)} in occupied "
         f"cells); checking {len(order)}, {len(done)} already in {out}"

@@ -212,8 +212,14 @@ def test_scoring_config_rejects_bad_values():
     assert ScoringConfig.from_cfg(uneven.eval).screen_estimate == "scaled"
     assert compose_config("run", ["domain=warehouse_even"]).eval.screen_estimate == "free_flow"
     manufacturing = compose_config("run", ["domain=manufacturing"])  # likewise, its own
-    assert manufacturing.domain.simulation.screen_crowd_mean == 18
+    assert manufacturing.domain.simulation.screen_crowd_mean == 22
     assert ScoringConfig.from_cfg(manufacturing.eval).screen_estimate == "scaled"
+    # its jammed runs stop on a work bound; the warehouses' (whose comparison arms share one
+    # planner) do not
+    assert ScoringConfig.from_cfg(manufacturing.eval).planner["plan_max_expansions"] == 2_000_000
+    for name in ("warehouse_even", "warehouse_uneven"):
+        planner = ScoringConfig.from_cfg(compose_config("run", [f"domain={name}"]).eval).planner
+        assert "plan_max_expansions" not in planner, name
     # ... and the congested-layout share it ran with; the shipped config names today's fit
     from omegaconf import OmegaConf
 

@@ -175,5 +175,5 @@ def test_the_screen_takes_the_domains_crowding_threshold_unless_given_one():
 
     assert screen_crowd_mean(cfg("warehouse_even")) == 17.0
     assert screen_crowd_mean(cfg("warehouse_uneven")) == 19.25  # its traffic's own
-    assert screen_crowd_mean(cfg("manufacturing")) == 18.0
+    assert screen_crowd_mean(cfg("manufacturing")) == 22.0
     assert screen_crowd_mean(cfg("warehouse_uneven", 18)) == 18.0
