@@ -153,6 +153,7 @@ def main(argv: list[str] | None = None) -> None:
 
     from nca_qd.io import array_to_rows
     from nca_qd.layouts import get_layout
+    from nca_qd.run_dir import load_run_config
     from nca_qd.scoring.settings import ScoringConfig
     from nca_qd.scoring.tasks import rhcr_task
 
@@ -165,7 +166,7 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
 
     run = Path(args.run_dir)
-    cfg = OmegaConf.load(run / "config.yaml")
+    cfg = load_run_config(run)
     memo = np.load(run / "eval_memo.npz")
     scoring = ScoringConfig.from_cfg(OmegaConf.to_container(cfg.get("eval", {}), resolve=True))
     sim = cfg.domain.simulation

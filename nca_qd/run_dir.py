@@ -26,6 +26,17 @@ CONFIG_FILE, METRICS_FILE, CHECKPOINT_FILE = "config.yaml", "metrics.csv", "chec
 LEGACY_CHECKPOINT_FILE = "checkpoint.msgpack"  # dense msgpack of earlier versions
 SNAPSHOT_FILE = "snapshot.npz"  # portable: the state a fresh clone resumes from
 
+# Settings added after runs had been saved, each with the value that a saved configuration
+# without it ran with. The YAML holds the one default of new runs; :func:`migrate` gives an old
+# run directory its old behaviour explicitly, so a resumed or re-read run decides as it did.
+LEGACY_SETTINGS: dict[str, Any] = {
+    # the screen's prediction before the free-flow estimate (2026-11-26): screened x screen_scale
+    "eval.screen_estimate": "scaled",
+    # the congested-layout share of the free-flow estimate, fitted against exact simulator
+    # version 3 (nca_qd.sim.free_flow.CONGESTED_MODEL_V3) before the version-4 refit
+    "eval.screen_congested": [0.313, 4.882, -2.644],
+}
+
 
 def load_run_config(run_dir: str | Path) -> DictConfig:
     """The saved configuration of a run directory (for ``resume=``)."""
@@ -34,7 +45,24 @@ def load_run_config(run_dir: str | Path) -> DictConfig:
         raise NcaQdError(f"run directory {run_dir} does not exist")
     if not path.is_file():
         raise NcaQdError(f"{run_dir} is not a run directory ({CONFIG_FILE} missing)")
-    return OmegaConf.load(path)  # type: ignore[return-value]
+    cfg = OmegaConf.load(path)
+    filled = migrate(cfg)  # type: ignore[arg-type]
+    if filled:
+        log.info("%s: saved before %s existed; reading them as the run used them", run_dir, ", ".join(filled))
+    return cfg  # type: ignore[return-value]
+
+
+def migrate(cfg: DictConfig) -> list[str]:
+    """Fill in the :data:`LEGACY_SETTINGS` a saved run configuration lacks (in place, only within
+    blocks it has: a maze run without an ``eval`` block gets none); returns the keys filled."""
+    filled = []
+    for dotted, value in LEGACY_SETTINGS.items():
+        block, key = dotted.rsplit(".", 1)
+        parent = OmegaConf.select(cfg, block)
+        if isinstance(parent, DictConfig) and key not in parent:
+            parent[key] = value
+            filled.append(dotted)
+    return filled
 
 
 def select_elites(objective: np.ndarray, n: int) -> np.ndarray:

@@ -203,8 +203,6 @@ def test_scoring_config_rejects_bad_values():
         ScoringConfig.from_cfg({"screen_estimate": "guess"})
     with pytest.raises(NcaQdError, match="eval.screen_efficiency must be in"):
         ScoringConfig.from_cfg({"screen_efficiency": 1.5})
-    # a saved config from before the free-flow estimate keeps the estimate it ran with
-    assert ScoringConfig.from_cfg({}).screen_estimate == "scaled"
     assert ScoringConfig.from_cfg({"screen_empty_cells": True}).screen_empty_cells
     # the uneven warehouse's traffic has a screen calibrated for it (its domain config)
     uneven = compose_config("run", ["domain=warehouse_uneven"])
@@ -220,14 +218,9 @@ def test_scoring_config_rejects_bad_values():
     for name in ("warehouse_even", "warehouse_uneven"):
         planner = ScoringConfig.from_cfg(compose_config("run", [f"domain={name}"]).eval).planner
         assert "plan_max_expansions" not in planner, name
-    # ... and the congested-layout share it ran with; the shipped config names today's fit
-    from omegaconf import OmegaConf
-
     from nca_qd.sim.free_flow import CONGESTED_MODEL, CONGESTED_MODEL_V3
 
-    assert ScoringConfig.from_cfg({}).screen_congested == CONGESTED_MODEL_V3
-    shipped = OmegaConf.load(Path(__file__).parents[1] / "experiments/conf/run.yaml").eval
-    assert ScoringConfig.from_cfg(shipped).screen_congested == CONGESTED_MODEL != CONGESTED_MODEL_V3
+    assert ScoringConfig.from_cfg({}).screen_congested == CONGESTED_MODEL != CONGESTED_MODEL_V3
     for bad in ([1.0, 2.0], "0.4 4.5 -2.6", [0.4, float("nan"), 1.0], [0.4, "x", 1.0]):
         with pytest.raises(NcaQdError, match="eval.screen_congested must be three finite numbers"):
             ScoringConfig.from_cfg({"screen_congested": bad})
@@ -723,3 +716,53 @@ def test_an_abort_from_another_thread_ends_a_running_map_without_resubmitting():
     assert len(raised) == 1 and isinstance(raised[0], KeyboardInterrupt)
     assert be._pool is None  # no new pool was started for a retry
     be.close()
+
+
+def test_each_scoring_setting_has_one_default_the_yamls():
+    """ScoringConfig's defaults are run.yaml's ``eval`` values (one default per setting)."""
+    from dataclasses import fields
+
+    from omegaconf import OmegaConf
+
+    shipped = OmegaConf.to_container(
+        OmegaConf.load(Path(__file__).parents[1] / "experiments/conf/run.yaml").eval
+    )
+    assert isinstance(shipped, dict)
+    plain = ScoringConfig()
+    checked = 0
+    for f in fields(ScoringConfig):
+        if f.name in shipped:
+            want = shipped[f.name]
+            got = getattr(plain, f.name)
+            assert (list(got) if isinstance(got, tuple) else got) == want, f.name
+            checked += 1
+    assert checked >= 10
+    assert ScoringConfig.from_cfg(shipped) == ScoringConfig(planner=ScoringConfig.from_cfg(shipped).planner)
+
+
+def test_a_run_saved_before_a_setting_is_read_through_the_migration(tmp_path):
+    """A run directory whose config.yaml predates a setting is read with the value it ran with,
+    named in run_dir.LEGACY_SETTINGS; a config that has the key keeps it; a block the config lacks
+    stays absent."""
+    from omegaconf import OmegaConf
+
+    from nca_qd.run_dir import LEGACY_SETTINGS, load_run_config
+    from nca_qd.sim.free_flow import CONGESTED_MODEL_V3
+
+    old, new, maze = tmp_path / "old", tmp_path / "new", tmp_path / "maze"
+    for d, cfg in (
+        (old, {"eval": {"exact": "selective"}}),
+        (new, {"eval": {"screen_estimate": "free_flow", "screen_congested": [1.0, 2.0, 3.0]}}),
+        (maze, {"domain": {"name": "maze"}}),
+    ):
+        d.mkdir()
+        OmegaConf.save(OmegaConf.create(cfg), d / "config.yaml")
+    got = ScoringConfig.from_cfg(load_run_config(old).eval)
+    assert got.screen_estimate == "scaled" and got.screen_congested == CONGESTED_MODEL_V3
+    assert {"eval.screen_estimate", "eval.screen_congested"} <= set(LEGACY_SETTINGS)
+    kept = ScoringConfig.from_cfg(load_run_config(new).eval)
+    assert kept.screen_estimate == "free_flow" and kept.screen_congested == (1.0, 2.0, 3.0)
+    assert "eval" not in load_run_config(maze)
+    # the shipped even search predates both keys and ran with the scaled screen
+    shipped = load_run_config(Path(__file__).parents[1] / "results/warehouse_even_a5")
+    assert ScoringConfig.from_cfg(shipped.eval).screen_estimate == "scaled"

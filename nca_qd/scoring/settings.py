@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from nca_qd.errors import NcaQdError
-from nca_qd.sim.free_flow import CONGESTED_MODEL_V3
+from nca_qd.sim.free_flow import CONGESTED_MODEL
 from nca_qd.sim.rhcr import planner_options
 
 EXACT_POLICIES = ("selective", "all")
@@ -29,13 +29,13 @@ class ScoringConfig:
     exact: str = "selective"
     screen_scale: float = 1.3
     # scaled: screened throughput x screen_scale; free_flow: nca_qd.sim.free_flow.rhcr_estimate.
-    # The default of a config without the key is the estimate runs made before it existed used.
-    screen_estimate: str = "scaled"
+    # Defaults here are the YAML's (experiments/conf/run.yaml, tested); a run saved before a key
+    # existed is read through nca_qd.run_dir.migrate, not through a differing default.
+    screen_estimate: str = "free_flow"
     screen_efficiency: float = 0.932
     # (free_flow) a + b * screened throughput / free flow + c * stop time / T: RHCR's share of
-    # free flow on a layout with a congested screened run; a config without the key gets the
-    # fit its run was started with (against exact simulator version 3)
-    screen_congested: tuple[float, float, float] = CONGESTED_MODEL_V3
+    # free flow on a layout with a congested screened run
+    screen_congested: tuple[float, float, float] = CONGESTED_MODEL
     exact_margin: float = 0.1
     exact_random_share: float = 0.1
     exact_time_limit_s: float | None = None
@@ -48,10 +48,10 @@ class ScoringConfig:
     @classmethod
     def from_cfg(cls, cfg: Mapping[str, Any] | None) -> ScoringConfig:
         cfg = dict(cfg or {})
-        exact = str(cfg.get("exact", "selective"))
+        exact = str(cfg.get("exact", cls.exact))
         if exact not in EXACT_POLICIES:
             raise NcaQdError(f"eval.exact must be one of {', '.join(EXACT_POLICIES)}, got {exact!r}")
-        estimate = str(cfg.get("screen_estimate", "scaled"))
+        estimate = str(cfg.get("screen_estimate", cls.screen_estimate))
         if estimate not in SCREEN_ESTIMATES:
             raise NcaQdError(
                 f"eval.screen_estimate must be one of {', '.join(SCREEN_ESTIMATES)}, got {estimate!r}"
@@ -59,21 +59,21 @@ class ScoringConfig:
         for name in ("screen", "screen_empty_cells", "memo"):
             if name in cfg and not isinstance(cfg[name], bool):
                 raise NcaQdError(f"eval.{name} must be true or false, got {cfg[name]!r}")
-        screen = bool(cfg.get("screen", True))
+        screen = bool(cfg.get("screen", cls.screen))
         out = cls(
             screen=screen,
             exact=exact if screen else "all",
-            screen_scale=float(cfg.get("screen_scale", 1.3)),
+            screen_scale=float(cfg.get("screen_scale", cls.screen_scale)),
             screen_estimate=estimate,
-            screen_efficiency=float(cfg.get("screen_efficiency", 0.932)),
-            screen_congested=_three_numbers(cfg.get("screen_congested", CONGESTED_MODEL_V3)),
-            exact_margin=float(cfg.get("exact_margin", 0.1)),
-            exact_random_share=float(cfg.get("exact_random_share", 0.1)),
+            screen_efficiency=float(cfg.get("screen_efficiency", cls.screen_efficiency)),
+            screen_congested=_three_numbers(cfg.get("screen_congested", cls.screen_congested)),
+            exact_margin=float(cfg.get("exact_margin", cls.exact_margin)),
+            exact_random_share=float(cfg.get("exact_random_share", cls.exact_random_share)),
             exact_time_limit_s=(
                 None if cfg.get("exact_time_limit_s") is None else float(cfg["exact_time_limit_s"])
             ),
-            screen_empty_cells=bool(cfg.get("screen_empty_cells", False)),
-            memo=bool(cfg.get("memo", True)),
+            screen_empty_cells=bool(cfg.get("screen_empty_cells", cls.screen_empty_cells)),
+            memo=bool(cfg.get("memo", cls.memo)),
             planner=planner_options(cfg, "eval."),
         )
         if not 0.0 <= out.exact_random_share <= 1.0:
