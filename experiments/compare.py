@@ -5,8 +5,8 @@ appendix.
     python -m experiments.compare runs=results/compare_maze        # every run below a folder
 
 Runs are grouped by domain (with its measures) and algorithm; each group's final QD-score and
-coverage are reported as mean ± standard error over its runs (``compare.md``, ``compare.csv``)
-and drawn over evaluations with 95 % intervals (``compare.png``). See :mod:`nca_qd.compare`.
+coverage are reported as mean ± standard error over its runs (``comparison.md``, ``comparison.csv``)
+and drawn over evaluations with 95 % intervals (``comparison.png``). See :mod:`nca_qd.compare`.
 """
 
 from __future__ import annotations

@@ -219,8 +219,8 @@ def plot_curves(path: Path, summaries: Sequence[GroupSummary], points: int = 200
 
 
 def compare(paths: Iterable[str | Path], out: str | Path) -> tuple[str, list[Path]]:
-    """Aggregate the runs at ``paths`` into ``out``: ``compare.md``, ``compare.csv`` and
-    ``compare.png``. Returns the table and the files written."""
+    """Aggregate the runs at ``paths`` into ``out``: ``comparison.md``, ``comparison.csv`` and
+    ``comparison.png``. Returns the table and the files written."""
     curves = [read_run(p) for p in find_runs(paths)]
     summaries = summarise(curves)
     out = Path(out)
@@ -228,7 +228,7 @@ def compare(paths: Iterable[str | Path], out: str | Path) -> tuple[str, list[Pat
     table = table_markdown(summaries)
     from nca_qd.io import atomic_write_text
 
-    atomic_write_text(out / "compare.md", table)
-    write_csv(out / "compare.csv", summaries)
-    plot_curves(out / "compare.png", summaries)
-    return table, [out / "compare.md", out / "compare.csv", out / "compare.png"]
+    atomic_write_text(out / "comparison.md", table)
+    write_csv(out / "comparison.csv", summaries)
+    plot_curves(out / "comparison.png", summaries)
+    return table, [out / "comparison.md", out / "comparison.csv", out / "comparison.png"]

@@ -26,6 +26,7 @@ def test_runs_are_grouped_and_summarised_as_mean_and_standard_error(tmp_path):
     _fake_run(tmp_path / "c0", "dsage", 0, [(100, 1, 0.01)], measures=("entropy", "path_length"))
     table, files = compare([tmp_path], tmp_path / "out")
     assert all(f.is_file() for f in files)
+    assert sorted(f.name for f in files) == ["comparison.csv", "comparison.md", "comparison.png"]
     rows = [line for line in table.splitlines() if line.startswith("| maze")]
     # per domain, the best QD-score first
     assert rows[0].startswith("| maze (entropy+path_length) | dsage | 1 (0)")
