@@ -19,8 +19,9 @@ so the check can be stopped and resumed); the summary is printed at the end:
 
 ``--replay 18,22,26`` then screens the checked layouts again (N_e seeds, the domain's agents
 and T) with each crowding threshold and prints which of them the search's rule would now send to
-exact runs (prediction x (1 + ``exact_margin``) >= the elite), improvers and others apart: what a
-threshold would have caught, and what it costs (the others). The ``free_flow`` estimate is
+exact runs (prediction x (1 + margin) >= the elite, at the run's ``exact_margin``, 0.2 and 0.3),
+improvers and others apart: what a threshold or margin would have caught, and what it costs (the
+others). The ``free_flow`` estimate is
 replayed with the run's configured efficiency (the search recalibrates it as it goes).
 """
 
@@ -135,15 +136,14 @@ def replay(records: list[dict], cfg, scoring, thresholds: list[float]) -> list[d
             pred = rhcr_estimate(thr, ok, stop, flow, scoring.screen_efficiency, scoring.screen_congested)
         else:
             pred = scoring.screen_scale * thr.mean(1)
-        chosen = pred * (1 + scoring.exact_margin) >= elite
-        out.append(
-            {
-                "crowd_mean": threshold,
-                "screen_flowing_runs": round(float(ok.mean()), 3),
+        row: dict = {"crowd_mean": threshold, "screen_flowing_runs": round(float(ok.mean()), 3)}
+        for margin in dict.fromkeys([scoring.exact_margin, 0.2, 0.3]):  # the run's margin first
+            chosen = pred * (1 + margin) >= elite
+            row[f"margin_{margin:g}"] = {
                 "improvers_chosen": f"{int((chosen & better).sum())} of {int(better.sum())}",
                 "others_chosen": f"{int((chosen & ~better).sum())} of {int((~better).sum())}",
             }
-        )
+        out.append(row)
         print(json.dumps(out[-1]), flush=True)
     return out
 
