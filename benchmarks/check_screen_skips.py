@@ -163,6 +163,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", required=True, help="JSON lines, one per checked layout (resumable)")
     ap.add_argument("--replay", default=None, help="crowding thresholds to replay the screen with")
+    ap.add_argument("--replay-only", action="store_true", help="replay the layouts in --out; run none")
     args = ap.parse_args(argv)
 
     run = Path(args.run_dir)
@@ -189,6 +190,9 @@ def main(argv: list[str] | None = None) -> None:
         f"cells); checking {len(order)}, {len(done)} already in {out}"
     )
     records = [done[pool[i]["key"]] for i in order if pool[i]["key"] in done]
+    if args.replay_only:  # every checked layout of the file, none run now
+        order, known = np.array([], int), {p["key"] for p in pool}
+        records = [r for k, r in done.items() if k in known]
     for i in order:
         p = pool[i]
         if p["key"] in done:

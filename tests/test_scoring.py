@@ -206,7 +206,7 @@ def test_scoring_config_rejects_bad_values():
     assert ScoringConfig.from_cfg({"screen_empty_cells": True}).screen_empty_cells
     # the uneven warehouse's traffic has a screen calibrated for it (its domain config)
     uneven = compose_config("run", ["domain=warehouse_uneven"])
-    assert uneven.domain.simulation.screen_crowd_mean == 19.25
+    assert uneven.domain.simulation.screen_crowd_mean == 21
     assert ScoringConfig.from_cfg(uneven.eval).screen_estimate == "scaled"
     assert compose_config("run", ["domain=warehouse_even"]).eval.screen_estimate == "free_flow"
     manufacturing = compose_config("run", ["domain=manufacturing"])  # likewise, its own

@@ -174,6 +174,6 @@ def test_the_screen_takes_the_domains_crowding_threshold_unless_given_one():
         return OmegaConf.create({"domain": domain, "screen_crowd_mean": value})
 
     assert screen_crowd_mean(cfg("warehouse_even")) == 17.0
-    assert screen_crowd_mean(cfg("warehouse_uneven")) == 19.25  # its traffic's own
+    assert screen_crowd_mean(cfg("warehouse_uneven")) == 21.0  # its traffic's own
     assert screen_crowd_mean(cfg("manufacturing")) == 22.0
     assert screen_crowd_mean(cfg("warehouse_uneven", 18)) == 18.0
