@@ -201,3 +201,31 @@ def _initial_agents(lay: LayoutArrays, cycle, base, n_agents: int):
     phase0 = (_hash(base, agents, 3) % jnp.uint32(len(cycle))).astype(jnp.int32)
     goal0, dwell0 = _draw_goal(lay, cycle, base, agents, jnp.zeros(n_agents, jnp.int32), phase0)
     return pos0, phase0, goal0, dwell0
+
+
+def initial_state(lay: LayoutArrays, cycle, seed, n_agents: int, n_tasks: int, n_paths: int | None) -> dict:
+    """The run state every planner starts from (its own entries added by the planner): the
+    shared initial agents of this layout and seed, counters at zero, ``tasks`` per timestep
+    (``n_tasks`` slots) and, with ``n_paths``, each agent's cell per timestep from t = 0."""
+    _, jnp = _jax()
+    N = n_agents
+    base = _hash(seed, 0x51ED)
+    pos0, phase0, goal0, dwell0 = _initial_agents(lay, cycle, base, N)
+    st = dict(
+        t=jnp.int32(0),
+        pos=pos0,
+        goal=goal0,
+        dwell=dwell0,
+        arrived=jnp.zeros(N, bool),
+        stayed=jnp.zeros(N, jnp.int32),
+        k=jnp.zeros(N, jnp.int32),
+        congested=jnp.bool_(False),
+        tasks=jnp.zeros(n_tasks, jnp.int32),
+        visits=jnp.zeros(lay.traversable.size, jnp.int32),
+        base=base,
+        phase0=phase0,
+        delays=jnp.int32(0),
+    )
+    if n_paths is not None:
+        st["paths"] = jnp.zeros((n_paths, N), jnp.int32).at[0].set(pos0)
+    return st

@@ -25,7 +25,7 @@ from __future__ import annotations
 import math
 from typing import Any, NamedTuple
 
-from nca_qd.sim.screen_base import DENSITY_K, LayoutArrays, _draw_goal, _hash, _initial_agents, _jax
+from nca_qd.sim.screen_base import DENSITY_K, LayoutArrays, _draw_goal, _hash, _jax, initial_state
 
 # "crowding" congestion (the screen's default): RHCR's rule, or, from the CROWD_MIN_CHECKS-th
 # check on, a mean since the start of >= CROWD_MEAN agents in the most crowded DENSITY_K x
@@ -150,36 +150,21 @@ def _kernel(lay_all, dist_all, *, n_agents, T, replan, cycle, record_paths, prio
 
 
 def _init_one(kn: Kernel, li, seed) -> dict:
-    """A run's state at t = 0: the shared initial agents of this layout and seed."""
+    """A run's state at t = 0: the planners' shared start, and PIBT's own entries."""
     _, jnp = _jax()
-    N, T, HW = kn.N, kn.T, kn.HW
-    base = _hash(seed, 0x51ED)
-    pos0, phase0, goal0, dwell0 = _initial_agents(kn.layout(li), kn.cycle, base, N)
-    st = dict(
-        t=jnp.int32(0),
-        pos=pos0,
-        goal=goal0,
-        dwell=dwell0,
-        arrived=jnp.zeros(N, bool),
-        stayed=jnp.zeros(N, jnp.int32),
-        k=jnp.zeros(N, jnp.int32),
+    N = kn.N
+    st = initial_state(kn.layout(li), kn.cycle, seed, N, kn.T, kn.T + 1 if kn.record_paths else None)
+    goal0 = st["goal"]
+    return dict(
+        st,
         prio=jnp.zeros(N, jnp.int32),
         active=jnp.zeros(N, bool),
-        congested=jnp.bool_(False),
-        tasks=jnp.zeros(T, jnp.int32),
-        visits=jnp.zeros(HW, jnp.int32),
-        base=base,
-        phase0=phase0,
-        tiebreak=(_hash(base, kn.agents, 4) & 2047).astype(jnp.int32),
-        togo=kn.dist_flat[(li * kn.G + goal0) * HW + pos0].astype(jnp.int32),
-        delays=jnp.int32(0),
+        tiebreak=(_hash(st["base"], kn.agents, 4) & 2047).astype(jnp.int32),
+        togo=kn.dist_flat[(li * kn.G + goal0) * kn.HW + st["pos"]].astype(jnp.int32),
         crowd_sum=jnp.int32(0),
         n_checked=jnp.int32(0),
         crowd=jnp.zeros(kn.n_checks + 1, jnp.int32),
     )
-    if kn.record_paths:
-        st["paths"] = jnp.zeros((T + 1, N), jnp.int32).at[0].set(pos0)
-    return st
 
 
 def _preferences(kn: Kernel, st: dict, li):

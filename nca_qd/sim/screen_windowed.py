@@ -46,7 +46,7 @@ from __future__ import annotations
 import math
 from typing import Any, NamedTuple
 
-from nca_qd.sim.screen_base import DENSITY_K, WINDOW, LayoutArrays, _draw_goal, _hash, _initial_agents, _jax
+from nca_qd.sim.screen_base import DENSITY_K, WINDOW, LayoutArrays, _draw_goal, _hash, _jax, initial_state
 from nca_qd.sim.screen_windowed_call import _planner, plan_window
 
 
@@ -96,31 +96,12 @@ def _plan_one(rd: _Rounds, st: dict, li):
 
 
 def _init_one(rd: _Rounds, li, seed) -> dict:
-    """A run's state at t = 0: the shared initial agents of this layout and seed."""
+    """A run's state at t = 0: the planners' shared start, and this planner's own entries
+    (room for the h steps a last round may plan past T)."""
     _, jnp = _jax()
-    N, T, h = rd.N, rd.T, rd.h
-    base = _hash(seed, 0x51ED)
-    pos0, phase0, goal0, dwell0 = _initial_agents(rd.layout(li), rd.cycle, base, N)
-    st = dict(
-        t=jnp.int32(0),
-        pos=pos0,
-        goal=goal0,
-        dwell=dwell0,
-        arrived=jnp.zeros(N, bool),
-        stayed=jnp.zeros(N, jnp.int32),
-        tasking=jnp.zeros(N, bool),
-        k=jnp.zeros(N, jnp.int32),
-        congested=jnp.bool_(False),
-        tasks=jnp.zeros(T + h, jnp.int32),
-        visits=jnp.zeros(rd.HW, jnp.int32),
-        base=base,
-        phase0=phase0,
-        delays=jnp.int32(0),
-        crowd=jnp.zeros(rd.n_rounds + 1, jnp.int32),
-    )
-    if rd.record_paths:
-        st["paths"] = jnp.zeros((T + h + 1, N), jnp.int32).at[0].set(pos0)
-    return st
+    T, h = rd.T, rd.h
+    st = initial_state(rd.layout(li), rd.cycle, seed, rd.N, T + h, T + h + 1 if rd.record_paths else None)
+    return dict(st, tasking=jnp.zeros(rd.N, bool), crowd=jnp.zeros(rd.n_rounds + 1, jnp.int32))
 
 
 def _crowding(rd: _Rounds, pos):
