@@ -19,6 +19,7 @@ from omegaconf import DictConfig, OmegaConf
 from nca_qd.errors import NcaQdError
 from nca_qd.qd import archive_io, checkpoint
 from nca_qd.qd.loop import archive_fields_to_arrays
+from nca_qd.sim.free_flow import CONGESTED_MODEL_V3
 
 log = logging.getLogger("nca_qd.run")
 
@@ -33,8 +34,8 @@ LEGACY_SETTINGS: dict[str, Any] = {
     # the screen's prediction before the free-flow estimate (2026-11-26): screened x screen_scale
     "eval.screen_estimate": "scaled",
     # the congested-layout share of the free-flow estimate, fitted against exact simulator
-    # version 3 (nca_qd.sim.free_flow.CONGESTED_MODEL_V3) before the version-4 refit
-    "eval.screen_congested": [0.313, 4.882, -2.644],
+    # version 3, before the version-4 refit
+    "eval.screen_congested": list(CONGESTED_MODEL_V3),
 }
 
 
