@@ -91,7 +91,7 @@ def elites(runs: str, n: int, seed: int, windows: int | None = None) -> None:
     from nca_qd.domains import make_domain
     from nca_qd.evaluation.layouts import load_run
     from nca_qd.pipeline import generate, make_generator
-    from nca_qd.scoring.tasks import repair_options
+    from nca_qd.scoring.jobs import repair_options
 
     print("run | mode | n | median s | mean s | max s | proven optimal | within 1 % | distance")
     for run in runs.split(","):
@@ -136,7 +136,7 @@ def seval(runs: str, n: int, windows: int = 0) -> None:
     from nca_qd.evaluation.layouts import load_run
     from nca_qd.pipeline import generate, make_generator
     from nca_qd.run_dir import select_elites
-    from nca_qd.scoring.tasks import repair_options
+    from nca_qd.scoring.jobs import repair_options
 
     print("run | cell | mode | status | seconds | distance | proven bound | gap")
     for run in runs.split(","):

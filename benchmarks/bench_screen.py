@@ -384,7 +384,7 @@ def _memo_sample(path: Path, iterations: tuple[int, int], n: int, seed: int) -> 
     layout's key."""
     from nca_qd.io import array_to_rows
     from nca_qd.layouts import get_layout
-    from nca_qd.scoring.memo import layout_key
+    from nca_qd.scoring.keys import layout_key
 
     memo = np.load(path)
     scenario = json.loads(str(memo["fingerprint"]))["domain"]
@@ -509,7 +509,7 @@ def search_layouts() -> None:
     """The screen on the search's own layouts: a random sample of a memo's exactly-run layouts."""
     from nca_qd.io import array_to_rows
     from nca_qd.layouts import get_layout
-    from nca_qd.scoring.memo import layout_key
+    from nca_qd.scoring.keys import layout_key
     from nca_qd.sim.screen import simulate_scenarios
 
     path = Path(os.environ.get("BENCH_SCREEN_MEMO", "results/warehouse_even_a5/eval_memo.npz"))
@@ -837,7 +837,7 @@ def _memo_exact_layouts(memo, lo: int, hi: int):
     indices among the memo's exact entries, and a function giving any entries' scenarios."""
     from nca_qd.io import array_to_rows
     from nca_qd.layouts import get_layout
-    from nca_qd.scoring.memo import layout_key
+    from nca_qd.scoring.keys import layout_key
 
     scenario = json.loads(str(memo["fingerprint"]))["domain"]
     tiles = get_layout(scenario, "domain").tiles

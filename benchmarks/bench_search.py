@@ -97,7 +97,7 @@ def replay_early_stop(run_dirs: str, deltas=(0.02, 0.05, 0.1)) -> None:
     import numpy as np
 
     from benchmarks.bench_screen import _elite_before
-    from nca_qd.scoring.memo import layout_key
+    from nca_qd.scoring.keys import layout_key
 
     for run in run_dirs.split(","):
         memo = np.load(Path(run) / "eval_memo.npz")

@@ -20,7 +20,7 @@ import numpy as np
 
 
 def _layouts(run_dir: str, n_jammed: int, n_flowing: int, seed: int) -> list[tuple[np.ndarray, float]]:
-    from nca_qd.scoring.memo import layout_key
+    from nca_qd.scoring.keys import layout_key
 
     z = np.load(f"{run_dir}/eval_memo.npz")
     exact = {bytes(k): i for i, k in enumerate(z["exact_keys"])}

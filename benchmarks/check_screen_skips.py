@@ -52,7 +52,7 @@ def _cells(cfg, layouts: np.ndarray) -> np.ndarray:
 def skipped_layouts(memo, cfg) -> list[dict]:
     """The memo's skipped layouts (valid repair, no exact entry), each with the iteration it first
     came in, its cell and that cell's elite then (``-inf``: empty)."""
-    from nca_qd.scoring.memo import layout_key
+    from nca_qd.scoring.keys import layout_key
 
     exact_keys = [bytes(k) for k in memo["exact_keys"]]
     exact_set = set(exact_keys)
@@ -154,8 +154,9 @@ def main(argv: list[str] | None = None) -> None:
     from nca_qd.io import array_to_rows
     from nca_qd.layouts import get_layout
     from nca_qd.run_dir import load_run_config
+    from nca_qd.scoring.jobs import ExactSettings, exact_job
     from nca_qd.scoring.settings import ScoringConfig
-    from nca_qd.scoring.tasks import rhcr_task
+    from nca_qd.sim.rhcr import REPLAN, WINDOW
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--run-dir", required=True)
@@ -200,11 +201,8 @@ def main(argv: list[str] | None = None) -> None:
         rows = array_to_rows(memo["repair_layouts"][p["row"]], tiles)
         seed0 = int(p["key"][:8], 16) % (2**31 - n_runs)
         t0 = time.process_time()
-        limit, planner = scoring.exact_time_limit_s, scoring.planner
-        runs = [
-            rhcr_task(rows, cfg.domain.name, n_agents, T, seed0 + s, limit, False, planner)
-            for s in range(n_runs)
-        ]
+        settings = ExactSettings(T, scoring.exact_time_limit_s, WINDOW, REPLAN, dict(scoring.planner or {}))
+        runs = [exact_job(rows, cfg.domain.name, n_agents, seed0 + s, settings) for s in range(n_runs)]
         rec = {
             **{k: p[k] for k in ("key", "iteration", "cell", "elite")},
             "seeds": [seed0 + s for s in range(n_runs)],

@@ -44,7 +44,7 @@ def layouts(args) -> None:
     from nca_qd.pipeline import generate
     from nca_qd.repair import repair, tiles_of
     from nca_qd.run_dir import select_elites
-    from nca_qd.scoring.tasks import repair_options
+    from nca_qd.scoring.jobs import repair_options
 
     d, dom, gen, archive = _load(args.run_dir)
     cells = select_elites(np.asarray(archive["objective"]), args.top)
@@ -79,7 +79,7 @@ def phase(args) -> None:
     from nca_qd.pipeline import generate
     from nca_qd.repair import repair, tiles_of
     from nca_qd.run_dir import select_elites
-    from nca_qd.scoring.tasks import repair_options
+    from nca_qd.scoring.jobs import repair_options
     from nca_qd.sim.rhcr import simulate_many
 
     d, dom, gen, archive = _load(args.run_dir)
@@ -129,7 +129,7 @@ def _polish_one(job):
 
 def polish(args) -> None:
     from experiments.cli import compose_config
-    from nca_qd.scoring.tasks import repair_options
+    from nca_qd.scoring.jobs import repair_options
 
     d = compose_config("repair", [f"domain={args.domain}"]).domain
     opts = repair_options(d, "eval")

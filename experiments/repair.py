@@ -19,7 +19,7 @@ from nca_qd.io import MapFile, array_to_rows, load_map, save_map
 from nca_qd.layouts import LAYOUTS, get_layout
 from nca_qd.repair import make_rules, repair, tiles_of
 from nca_qd.repair.validator import check
-from nca_qd.scoring.tasks import REPAIR_OPTIONS
+from nca_qd.scoring.jobs import REPAIR_OPTIONS
 
 log = logging.getLogger("nca_qd.repair")
 

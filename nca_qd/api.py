@@ -87,7 +87,7 @@ class Generator:
 
     def _repair(self, layout, full, n_shelves, n_agents) -> np.ndarray:
         from nca_qd.repair import repair
-        from nca_qd.scoring.tasks import repair_options
+        from nca_qd.scoring.jobs import repair_options
 
         d = self.cfg.domain
         s_eval = self.full_shape("eval")

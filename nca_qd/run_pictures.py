@@ -111,12 +111,12 @@ def draw_repaired(
     """``best_<which>_repaired.png``: each elite's layout repaired on the evaluation backend."""
     from nca_qd import viz
     from nca_qd.scoring.backend import make_backend, map_jobs
-    from nca_qd.scoring.tasks import repair_options, repair_task
+    from nca_qd.scoring.jobs import repair_job, repair_options
 
     opts = repair_options(cfg.domain, which)
     backend = make_backend(cfg.get("eval"))
     try:
-        repaired = map_jobs(backend, repair_task, [(domain.name, lay, opts) for lay in layouts])
+        repaired = map_jobs(backend, repair_job, [(domain.name, lay, opts) for lay in layouts])
     finally:
         backend.close()
     shown, titles = [], []

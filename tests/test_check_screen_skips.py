@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 from benchmarks import check_screen_skips as css
-from nca_qd.scoring.memo import layout_key
+from nca_qd.scoring.keys import layout_key
 
 
 def _memo():

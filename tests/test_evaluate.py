@@ -20,6 +20,7 @@ from experiments.cli import compose_config, main_guard
 from nca_qd import evaluation as ev
 from nca_qd.errors import NcaQdError
 from nca_qd.io import atomic_write_text, load_map, save_npz
+from nca_qd.scoring.jobs import ExactSettings, RunOutcome, exact_job
 
 # Storage 9x10 (9x14 with the workstation columns) at S, 13x14 (13x18) at S_eval.
 TINY_RUN = [
@@ -319,10 +320,11 @@ def test_tiling_keeps_the_frame_and_repeats_the_pattern():
 
 
 def test_statistics_leave_out_timed_out_runs(maps):
-    rows = ev.exact_run(HUMAN_9x14, "warehouse_even", 6, 5000, 0, 1e-6, 10, 5, False)
+    settings = ExactSettings(5000, 1e-6, 10, 5, {})
+    rows = exact_job(HUMAN_9x14, "warehouse_even", 6, 0, settings)
     assert rows.timed_out and not rows.success
-    ok = ev.SimOutcome("rhcr", 1, 0.5, True, 100)
-    s = ev.run_stats([rows, ok, ev.SimOutcome("rhcr", 2, error="boom")])
+    ok = RunOutcome("rhcr", 1, 0.5, True, 100)
+    s = ev.run_stats([rows, ok, RunOutcome("rhcr", 2, error="boom")])
     assert (s["runs"], s["completed"], s["timed_out"], s["errors"]) == (3, 1, 1, 1)
     assert s["success_rate"] == 1.0 and s["throughput_mean"] == 0.5
     assert math.isnan(s["throughput_se"])
@@ -591,31 +593,36 @@ def test_a_failed_repair_is_a_row_without_runs_and_old_outputs_go(tmp_path, maps
 
 
 def test_the_exact_run_record_keys_on_every_input_and_keeps_only_what_it_can_serve(tmp_path, monkeypatch):
-    from nca_qd.evaluation.store import ExactRunStore, run_key
+    from nca_qd.evaluation.store import ExactRunStore
+    from nca_qd.scoring.keys import exact_run_key
     from nca_qd.sim import rhcr
 
-    args = (HUMAN_9x14, "warehouse_even", 8, 40, 0, 10, 5, {"pbs_max_nodes": 2000})
-    key = run_key(*args)
-    assert run_key(*args) == key
+    settings = ExactSettings(40, None, 10, 5, {"pbs_max_nodes": 2000})
+    args = (HUMAN_9x14, "warehouse_even", 8, 0, settings)
+    key = exact_run_key(*args)
+    assert exact_run_key(*args) == key
     changed = [
         ([HUMAN_9x14[0][:-1] + "@", *HUMAN_9x14[1:]], *args[1:]),  # one tile
-        (*args[:4], 1, *args[5:]),  # the seed
-        (*args[:7], {"pbs_max_nodes": 3000}),  # the planner
+        (*args[:3], 1, settings),  # the seed
+        (*args[:4], ExactSettings(40, None, 10, 5, {"pbs_max_nodes": 3000})),  # the planner
+        (*args[:4], ExactSettings(40, None, 10, 4, {"pbs_max_nodes": 2000})),  # replanning
     ]
-    assert len({key, *(run_key(*a) for a in changed)}) == 4
+    assert len({key, *(exact_run_key(*a) for a in changed)}) == 5
+    # the wall-clock limit does not decide a run that ends: a run recorded under one serves
+    assert exact_run_key(*args[:4], ExactSettings(40, 60.0, 10, 5, {"pbs_max_nodes": 2000})) == key
     monkeypatch.setattr(rhcr, "VERSION", rhcr.VERSION + 1)
-    assert run_key(*args) != key  # a revised simulator
+    assert exact_run_key(*args) != key  # a revised simulator
     monkeypatch.setattr(rhcr, "VERSION", 1)
     # recorded files hold these keys: the digest must not drift with a refactor
-    assert run_key(*args) == "3b0a1e335a9a2af27f08b9b83f19575c"
+    assert exact_run_key(*args) == "3b0a1e335a9a2af27f08b9b83f19575c"
     monkeypatch.undo()
 
     store = ExactRunStore(tmp_path)
     tasks, visits = np.arange(40, dtype=np.int32) % 3, np.ones((9, 14), np.int64)
-    store.add(key, ev.SimOutcome("rhcr", 0, 0.5, True, 40, False, 1.0, None, tasks, visits))
-    store.add("bare", ev.SimOutcome("rhcr", 1, 0.25, False, 12, False, 1.0))
-    store.add("slow", ev.SimOutcome("rhcr", 2, timed_out=True))
-    store.add(key, ev.SimOutcome("rhcr", 0, 0.5, True, 40, False, 1.0))  # never replaces detail
+    store.add(key, RunOutcome("rhcr", 0, 0.5, True, 40, False, 1.0, None, tasks, visits))
+    store.add("bare", RunOutcome("rhcr", 1, 0.25, False, 12, False, 1.0))
+    store.add("slow", RunOutcome("rhcr", 2, timed_out=True))
+    store.add(key, RunOutcome("rhcr", 0, 0.5, True, 40, False, 1.0))  # never replaces detail
     again = ExactRunStore(tmp_path)  # as the next evaluation reads it
     got = again.get(key, need_detail=True)
     assert got is not None and (got.throughput, got.success, got.stop_time) == (0.5, True, 40)
@@ -628,7 +635,8 @@ def test_the_exact_run_record_keys_on_every_input_and_keeps_only_what_it_can_ser
 
 
 def test_the_screen_run_record_keys_on_every_input_and_the_screen_version(tmp_path, monkeypatch):
-    from nca_qd.evaluation.store import ScreenRunStore, screen_run_key
+    from nca_qd.evaluation.store import ScreenRunStore
+    from nca_qd.scoring.keys import screen_run_key
     from nca_qd.sim import screen
 
     args = (HUMAN_9x14, "warehouse_even", 8, 40, 0, 5)
@@ -652,16 +660,17 @@ def test_the_screen_run_record_keys_on_every_input_and_the_screen_version(tmp_pa
             mp.setattr(screen, name, value)
         assert screen_run_key(*args) == "f490bfb73186cb2d981970e7b69be5c5"
     store = ScreenRunStore(tmp_path)
-    store.add(key, ev.SimOutcome("screen", 0, 0.5, True, 40, False, 0.1))
+    store.add(key, RunOutcome("screen", 0, 0.5, True, 40, False, 0.1))
     got = ScreenRunStore(tmp_path).get(key, need_detail=False)
     assert got is not None and (got.simulator, got.throughput, got.stop_time) == ("screen", 0.5, 40)
     assert (tmp_path / "screen_runs.jsonl").is_file() and not (tmp_path / "exact_runs.jsonl").exists()
 
 
 def test_the_repair_record_keys_on_every_input_and_keeps_only_found_layouts(tmp_path):
-    from nca_qd.evaluation.store import RepairStore, repair_key
+    from nca_qd.evaluation.store import RepairStore
     from nca_qd.layouts import warehouse as wh
-    from nca_qd.scoring.tasks import RepairOutcome
+    from nca_qd.scoring.jobs import RepairOutcome
+    from nca_qd.scoring.keys import repair_key
 
     lay = load_map_rows(HUMAN_9x14)
     opts = {"n_shelves": 12, "n_agents": 8, "method": "hybrid"}
@@ -705,16 +714,16 @@ def test_an_evaluation_into_the_same_folder_reuses_its_repairs_and_so_its_runs(t
     recorded run serves. A second evaluation into the folder repairs nothing and runs nothing
     again; a folder written before repairs.jsonl adopts the layouts it saved; a saved layout
     that breaks the domain's rules is repaired again."""
-    from nca_qd.scoring import tasks
+    from nca_qd.scoring import jobs
 
     calls: list[tuple[int, int]] = []
-    real_repair_task = tasks.repair_task
+    real_repair_job = jobs.repair_job
 
-    def counting_repair_task(domain_name, layout, options):
+    def counting_repair_job(domain_name, layout, options):
         calls.append(np.shape(layout))
-        return real_repair_task(domain_name, layout, options)
+        return real_repair_job(domain_name, layout, options)
 
-    monkeypatch.setattr(tasks, "repair_task", counting_repair_task)
+    monkeypatch.setattr(jobs, "repair_job", counting_repair_job)
     run_dir = make_run(tmp_path / "run", elites=(3,))
     out = tmp_path / "ev"
     argv = [
@@ -794,6 +803,15 @@ def test_ctrl_c_during_the_screen_stops_the_exact_runs_at_once(monkeypatch):
     backend = WaitsForAbort()
     with pytest.raises(KeyboardInterrupt):
         runs_module.simulate_cells(
-            cells, {lay.key: lay}, "warehouse_even", TILES, 20, 0, backend, {}, {}, progress=False
+            cells,
+            {lay.key: lay},
+            "warehouse_even",
+            TILES,
+            20,
+            0,
+            backend,
+            ExactSettings(20, None, 10, 5, {}),
+            {},
+            progress=False,
         )
     assert backend.aborted.is_set()

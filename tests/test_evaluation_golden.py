@@ -146,7 +146,7 @@ def test_an_interrupted_evaluation_goes_on_from_its_recorded_runs(evaluated, tmp
     assert len(recorded) == len(exact) > 2
     screened = [r for r in rows if r["simulator"] == "screen"]
     assert len((evaluated / "screen_runs.jsonl").read_text().splitlines()) == len(screened) > 0
-    real, calls = runs_module.exact_run, []
+    real, calls = runs_module.exact_job, []
     real_screen, screen_calls = runs_module.screen_group, []
 
     def counted_screen(*args, **kwargs):
@@ -166,7 +166,7 @@ def test_an_interrupted_evaluation_goes_on_from_its_recorded_runs(evaluated, tmp
         return real(*args)
 
     out = tmp_path / "evaluation"
-    monkeypatch.setattr(runs_module, "exact_run", interrupted_after_two)
+    monkeypatch.setattr(runs_module, "exact_job", interrupted_after_two)
     with pytest.raises(KeyboardInterrupt):
         run_evaluation(evaluated.parent, out)
     kept = (out / "exact_runs.jsonl").read_text().splitlines()
@@ -174,7 +174,7 @@ def test_an_interrupted_evaluation_goes_on_from_its_recorded_runs(evaluated, tmp
     with (out / "exact_runs.jsonl").open("a") as fh:  # a write cut short
         fh.write(recorded[-1][:40])
     assert screen_calls, "the interrupted evaluation screened its batches"
-    monkeypatch.setattr(runs_module, "exact_run", counted)
+    monkeypatch.setattr(runs_module, "exact_job", counted)
     for expected_calls in (len(recorded) - 2, 0):
         calls.clear()
         screen_calls.clear()

@@ -102,7 +102,7 @@ def test_a_new_multi_agent_domain_runs_through_the_whole_pipeline(toy):
     from nca_qd.pipeline import generate, make_generator
     from nca_qd.repair import make_rules, repair
     from nca_qd.repair.validator import check
-    from nca_qd.scoring.tasks import repair_options
+    from nca_qd.scoring.jobs import repair_options
     from nca_qd.sim.checker import check_run
     from nca_qd.sim.rhcr import simulate
 

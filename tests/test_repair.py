@@ -122,7 +122,7 @@ def test_hybrid_is_valid_never_worse_than_its_start_and_optimal_with_time(cells)
 
 
 def test_hybrid_per_size_options_come_from_the_domain_config():
-    from nca_qd.scoring.tasks import repair_options
+    from nca_qd.scoring.jobs import repair_options
 
     cfg = {
         "repair": {

@@ -438,7 +438,7 @@ def test_first_of_each_indexes_every_key_by_its_first_copy(keys):
 
 
 def test_layout_key_tells_layouts_apart_by_tiles_and_shape():
-    from nca_qd.scoring.memo import layout_key
+    from nca_qd.scoring.keys import layout_key
 
     a = np.zeros((4, 6), np.int32)
     b = a.copy()
@@ -448,7 +448,7 @@ def test_layout_key_tells_layouts_apart_by_tiles_and_shape():
 
 
 def _memo_entries(memo):
-    from nca_qd.scoring.tasks import RepairOutcome
+    from nca_qd.scoring.jobs import RepairOutcome
 
     lay = np.arange(12, dtype=np.int32).reshape(3, 4) % 3
     memo.put_repair(b"\x00" * 20, RepairOutcome(lay, "repaired", 0.9, 2, 1.0), iteration=1)

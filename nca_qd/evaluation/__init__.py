@@ -69,14 +69,13 @@ from nca_qd.evaluation.records import (
     EvalLayout,
     Request,
     Results,
-    SimOutcome,
     full_shape,
     parse_size,
     region_shape,
     size_map,
     size_str,
 )
-from nca_qd.evaluation.runs import exact_run, merge_requests, screen_group, simulate_cells
+from nca_qd.evaluation.runs import exact_settings, merge_requests, screen_group, simulate_cells
 from nca_qd.evaluation.selection import Selection, select_scalable, write_selection
 from nca_qd.evaluation.stats import mean_se_ci, request_runs, run_stats
 from nca_qd.evaluation.store import ExactRunStore, RepairStore, ScreenRunStore
@@ -181,7 +180,7 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
             int(ecfg["T"]),
             int(ecfg["seed"]),
             backend,
-            ecfg["exact"],
+            exact_settings(ecfg["exact"], int(ecfg["T"])),
             ecfg["screen"],
             bool(ecfg["progress"]),
             store,
@@ -213,11 +212,10 @@ __all__ = [
     "Request",
     "Results",
     "Selection",
-    "SimOutcome",
     "agent_range",
     "check_agents",
     "evaluate",
-    "exact_run",
+    "exact_settings",
     "full_shape",
     "generate_timed",
     "human_layout",

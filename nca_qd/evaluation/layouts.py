@@ -31,7 +31,7 @@ from nca_qd.layouts import get_layout, layout_names
 
 if TYPE_CHECKING:
     from nca_qd.evaluation.store import RepairStore
-    from nca_qd.scoring.tasks import RepairOutcome
+    from nca_qd.scoring.jobs import RepairOutcome
 
 log = logging.getLogger("nca_qd.evaluate")
 
@@ -153,9 +153,9 @@ def repair_all(
     """Repair each ``(layout, options)`` on the backend; sets ``layout`` and ``repair``. With a
     ``store``, a repair it holds (and whose layout passes the domain's rules) is reused and each
     new one is recorded as it ends."""
-    from nca_qd.evaluation.store import repair_key
     from nca_qd.scoring.backend import JobFailed, map_jobs
-    from nca_qd.scoring.tasks import RepairOutcome, repair_task
+    from nca_qd.scoring.jobs import RepairOutcome, repair_job
+    from nca_qd.scoring.keys import repair_key
 
     todo: list[tuple[EvalLayout, dict]] = []
     keys: list[str] = []
@@ -175,7 +175,7 @@ def repair_all(
             store.add(keys[i], res)
 
     log.info("repairing %d layout(s) on %s", len(todo), backend.describe())
-    out = map_jobs(backend, repair_task, [(domain_name, it.unrepaired, opts) for it, opts in todo], record)
+    out = map_jobs(backend, repair_job, [(domain_name, it.unrepaired, opts) for it, opts in todo], record)
     for (it, _), res in zip(todo, out):
         if isinstance(res, JobFailed):
             res = RepairOutcome(None, "error", 0.0, None, 0.0, res.error)
@@ -246,7 +246,7 @@ def repair_opts(
     command's ``n_shelves`` where given), N_s of the human layout at other sizes (or
     ``sizes.n_shelves``), traversable >= the most agents simulated (manufacturing), then this
     command's ``repair`` overrides."""
-    from nca_qd.scoring.tasks import repair_options
+    from nca_qd.scoring.jobs import repair_options
 
     which = plan.which(shape)
     opts = repair_options(d, "train" if which == "train" else "eval")

@@ -1,8 +1,8 @@
 """The evaluation's records and map sizes, which every other module of the package passes around.
 
 :class:`EvalLayout` (one layout under evaluation), :class:`Request` (what one table or curve
-asks of one layout), :class:`SimOutcome` (one simulation run, whichever simulator ran it) and
-``Results`` (the runs by layout, agent count and simulator); map sizes written "HxW"
+asks of one layout) and ``Results`` (the runs by layout, agent count and simulator, each a
+:class:`~nca_qd.scoring.jobs.RunOutcome`, the search's outcome type too); map sizes written "HxW"
 (:func:`size_str`, :func:`parse_size`, :func:`size_map`) and the full map of a generated
 region and back (:func:`full_shape`, :func:`region_shape`); how a value reads in a table or a
 log line (:func:`format_value`, :func:`finite`). Plain data, kept apart so that the stages
@@ -13,13 +13,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from nca_qd.errors import NcaQdError
 from nca_qd.layouts import get_layout
+from nca_qd.scoring.jobs import RunOutcome
 
 SIMULATORS = ("rhcr", "screen")
 
@@ -38,27 +39,7 @@ class EvalLayout:
     cell: int | None = None
     nca_iters: int | None = None
     gen_seconds: float | None = None
-    repair: Any = None  # nca_qd.scoring.tasks.RepairOutcome, None for human layouts
-
-
-@dataclass
-class SimOutcome:
-    """One simulation run, whichever simulator ran it (small: ships between processes)."""
-
-    simulator: str
-    seed: int
-    throughput: float = float("nan")
-    success: bool = False
-    stop_time: int = 0
-    timed_out: bool = False
-    seconds: float = 0.0
-    error: str | None = None
-    tasks_per_step: np.ndarray | None = field(default=None, repr=False)
-    tile_visits: np.ndarray | None = field(default=None, repr=False)
-
-    @property
-    def completed(self) -> bool:
-        return self.error is None and not self.timed_out
+    repair: Any = None  # nca_qd.scoring.jobs.RepairOutcome, None for human layouts
 
 
 @dataclass
@@ -73,7 +54,7 @@ class Request:
     detail: bool = False  # keep tasks per step and tile visits
 
 
-Results = dict[tuple[str, int, str], list[SimOutcome]]
+Results = dict[tuple[str, int, str], list[RunOutcome]]
 
 
 def size_str(shape: Sequence[int]) -> str:

@@ -1,14 +1,14 @@
 """The simulations of an evaluation: exact RHCR runs and screened runs.
 
 The requests are merged into one cell per (layout, agent count) (:func:`merge_requests`);
-:func:`simulate_cells` runs each cell's exact RHCR runs as backend jobs (:func:`exact_run`, in
-a background thread; runs recorded in the folder's
-:class:`~nca_qd.evaluation.store.ExactRunStore` are reused, and each new one is recorded as it
-ends) while it screens the cells in this process, in vmapped batches of one shape and agent
-count (:func:`screen_group`; cells whose runs the folder's
+:func:`simulate_cells` runs each cell's exact RHCR runs as backend jobs
+(:func:`~nca_qd.scoring.jobs.exact_job`, the search's job too, in a background thread; runs
+recorded in the folder's :class:`~nca_qd.evaluation.store.ExactRunStore` are reused, and each
+new one is recorded as it ends) while it screens the cells in this process, in vmapped batches
+of one shape and agent count (:func:`screen_group`; cells whose runs the folder's
 :class:`~nca_qd.evaluation.store.ScreenRunStore` holds are reused, and each batch's runs are
-recorded as it ends). Every run comes back as a
-:class:`~nca_qd.evaluation.records.SimOutcome`.
+recorded as it ends). Every run comes back as a :class:`~nca_qd.scoring.jobs.RunOutcome`, the
+search's outcome type too.
 """
 
 from __future__ import annotations
@@ -20,57 +20,27 @@ from typing import Any
 
 import numpy as np
 
-from nca_qd.errors import NcaQdError
-from nca_qd.evaluation.records import EvalLayout, Request, Results, SimOutcome, format_value, size_str
+from nca_qd.evaluation.records import EvalLayout, Request, Results, format_value, size_str
 from nca_qd.evaluation.stats import run_stats
-from nca_qd.evaluation.store import ExactRunStore, ScreenRunStore, run_key, screen_run_key
+from nca_qd.evaluation.store import ExactRunStore, ScreenRunStore
+from nca_qd.scoring.jobs import ExactSettings, RunOutcome, exact_job
+from nca_qd.scoring.keys import exact_run_key, screen_run_key
 from nca_qd.sim.screen import CROWD_MEAN
 
 log = logging.getLogger("nca_qd.evaluate")
 
 
-def exact_run(
-    rows: list[str],
-    scenario: str,
-    n_agents: int,
-    T: int,
-    seed: int,
-    time_limit_s: float | None,
-    window: int,
-    replan: int,
-    detail: bool,
-    planner: Mapping[str, Any] | None = None,
-) -> SimOutcome:
-    """One exact RHCR run as a backend job (errors of the layout come back in ``error``);
-    ``planner``: validated planner knobs (:func:`nca_qd.sim.rhcr.planner_options`)."""
-    from nca_qd.sim.rhcr import simulate
+def exact_settings(exact_cfg: Mapping[str, Any], T: int) -> ExactSettings:
+    """The evaluation's exact runs as one :class:`~nca_qd.scoring.jobs.ExactSettings`: its
+    ``exact`` block (window, replanning period, wall-clock limit, planner knobs) and ``T``."""
+    from nca_qd.sim.rhcr import planner_options
 
-    t0 = time.perf_counter()
-    try:
-        r = simulate(
-            rows,
-            scenario,
-            n_agents,
-            T,
-            seed,
-            window=window,
-            replan=replan,
-            time_limit_s=time_limit_s,
-            **dict(planner or {}),
-        )
-    except NcaQdError as exc:
-        return SimOutcome("rhcr", seed, error=str(exc), seconds=time.perf_counter() - t0)
-    return SimOutcome(
-        "rhcr",
-        seed,
-        float(r.throughput),
-        bool(r.success),
-        int(r.stop_time),
-        bool(r.timed_out),
-        time.perf_counter() - t0,
-        None,
-        np.asarray(r.tasks_per_step) if detail else None,
-        np.asarray(r.tile_visits) if detail else None,
+    return ExactSettings(
+        int(T),
+        exact_cfg.get("time_limit_s"),
+        int(exact_cfg["window"]),
+        int(exact_cfg["replan"]),
+        planner_options(exact_cfg, "exact."),
     )
 
 
@@ -98,14 +68,14 @@ def simulate_cells(
     T: int,
     seed0: int,
     backend,
-    exact_cfg: Mapping[str, Any],
+    exact: ExactSettings,
     screen_cfg: Mapping[str, Any],
     progress: bool = True,
     store: ExactRunStore | None = None,
     screen_store: ScreenRunStore | None = None,
 ) -> Results:
-    """Run every cell: exact runs as backend jobs (in a background thread, so they overlap
-    the screening), screening runs batched by (shape, agent count) in this process.
+    """Run every cell: exact runs as backend jobs under ``exact`` (in a background thread, so
+    they overlap the screening), screening runs batched by (shape, agent count) in this process.
     With a ``store``, exact runs it holds are reused and every new one is recorded in it as it
     finishes; likewise screened runs with a ``screen_store`` (recorded per batch).
     Returns ``results[(layout, n_agents, simulator)]``: outcomes in seed order."""
@@ -113,36 +83,20 @@ def simulate_cells(
 
     from nca_qd.io import array_to_rows
     from nca_qd.scoring.backend import map_jobs
-    from nca_qd.sim.rhcr import planner_options
 
     rows = {k: array_to_rows(v.layout, tiles) for k, v in layouts.items() if v.layout is not None}
-    planner = planner_options(exact_cfg, "exact.")
-    window, replan = int(exact_cfg.get("window", 10)), int(exact_cfg.get("replan", 5))
     results: Results = {}
-    exact: dict[tuple[str, int], list[SimOutcome]] = {}  # added to results after the screen's
+    done: dict[tuple[str, int], list[RunOutcome]] = {}  # added to results after the screen's
     jobs, slots, run_keys = [], [], []
     for (key, n), c in cells.items():
         for i in range(c.exact_runs):
-            rk = run_key(rows[key], scenario, n, T, seed0 + i, window, replan, planner)
+            rk = exact_run_key(rows[key], scenario, n, seed0 + i, exact)
             known = store.get(rk, c.detail) if store is not None else None
-            exact.setdefault((key, n), [])
+            done.setdefault((key, n), [])
             if known is not None:
-                exact[(key, n)].append(known)
+                done[(key, n)].append(known)
                 continue
-            jobs.append(
-                (
-                    rows[key],
-                    scenario,
-                    n,
-                    T,
-                    seed0 + i,
-                    exact_cfg.get("time_limit_s"),
-                    window,
-                    replan,
-                    c.detail,
-                    planner,
-                )
-            )
+            jobs.append((rows[key], scenario, n, seed0 + i, exact, c.detail))
             slots.append((key, n))
             run_keys.append(rk)
     if store is not None:
@@ -152,13 +106,13 @@ def simulate_cells(
 
     def record(i: int, out: Any) -> None:
         if store is not None:
-            store.add(run_keys[i], _outcome(out, jobs[i][4]))
+            store.add(run_keys[i], _outcome(out, jobs[i][3]))
 
     with ThreadPoolExecutor(max_workers=1) as pool:
         future = None
         if jobs:
             log.info("%d exact RHCR run(s) (T=%d) submitted to %s", len(jobs), T, backend.describe())
-            future = pool.submit(map_jobs, backend, exact_run, jobs, record)
+            future = pool.submit(map_jobs, backend, exact_job, jobs, record)
         try:
             _screen_cells(
                 cells, layouts, rows, scenario, T, seed0, screen_cfg, progress, results, screen_store
@@ -167,13 +121,13 @@ def simulate_cells(
                 if not future.done():
                     log.info("screening done; waiting for the exact runs")
                 for (key, n), job, out in zip(slots, jobs, future.result()):
-                    exact[(key, n)].append(_outcome(out, job[4]))
+                    done[(key, n)].append(_outcome(out, job[3]))
         except KeyboardInterrupt:  # Ctrl-C / SIGTERM: stop the exact runs now, not when they end
             abort = getattr(backend, "abort", None)
             if abort is not None:
                 abort()
             raise
-    for (key, n), outs in exact.items():
+    for (key, n), outs in done.items():
         results[(key, n, "rhcr")] = outs
     for k in results:
         results[k].sort(key=lambda o: o.seed)
@@ -217,7 +171,7 @@ def _screen_cells(
     reused = 0
     for (shape, n), group in sorted(groups.items(), key=lambda kv: (kv[0][0], kv[0][1])):
         bar.set_postfix(size=size_str(shape), agents=n)
-        known: dict[str, list[SimOutcome]] = {}
+        known: dict[str, list[RunOutcome]] = {}
         if store is not None:
             for c in group:
                 outs = [store.get(key_of(c, seed0 + i), c.detail) for i in range(c.screen_runs)]
@@ -239,11 +193,11 @@ def _screen_cells(
     bar.close()
 
 
-def _outcome(out: Any, seed: int) -> SimOutcome:
-    """A backend job's result as a SimOutcome (a job that failed every attempt: its error)."""
+def _outcome(out: Any, seed: int) -> RunOutcome:
+    """A backend job's result as a RunOutcome (a job that failed every attempt: its error)."""
     from nca_qd.scoring.backend import JobFailed
 
-    return SimOutcome("rhcr", seed, error=out.error) if isinstance(out, JobFailed) else out
+    return RunOutcome("rhcr", seed, error=out.error) if isinstance(out, JobFailed) else out
 
 
 def screen_group(
@@ -254,7 +208,7 @@ def screen_group(
     T: int,
     seed0: int,
     screen_cfg: Mapping[str, Any],
-) -> list[list[SimOutcome]]:
+) -> list[list[RunOutcome]]:
     """Screening runs of layouts of one shape at one agent count, in one vmapped batch."""
     from nca_qd.sim.screen import simulate_batch
 
@@ -275,7 +229,7 @@ def screen_group(
     for c, row in zip(group, res):
         out.append(
             [
-                SimOutcome(
+                RunOutcome(
                     "screen",
                     r.seed,
                     float(r.throughput),
@@ -293,7 +247,7 @@ def screen_group(
     return out
 
 
-def _log_cell(lay: EvalLayout, n: int, sim: str, outs: list[SimOutcome]) -> None:
+def _log_cell(lay: EvalLayout, n: int, sim: str, outs: list[RunOutcome]) -> None:
     s = run_stats(outs)
     log.info(
         "%s %s N_a=%d %s: %d run(s), success %s, throughput %s",

@@ -11,7 +11,8 @@ from typing import Any
 
 import numpy as np
 
-from nca_qd.evaluation.records import Request, Results, SimOutcome
+from nca_qd.evaluation.records import Request, Results
+from nca_qd.scoring.jobs import RunOutcome
 
 
 def mean_se_ci(values: Sequence[float]) -> tuple[float, float, float, float]:
@@ -30,7 +31,7 @@ def mean_se_ci(values: Sequence[float]) -> tuple[float, float, float, float]:
     return m, se, m - h, m + h
 
 
-def run_stats(outs: Sequence[SimOutcome]) -> dict[str, Any]:
+def run_stats(outs: Sequence[RunOutcome]) -> dict[str, Any]:
     """Figures of a set of runs (see the module docstring for what each averages)."""
     done = [o for o in outs if o.completed]
     succ = [o.throughput for o in done if o.success]
@@ -52,7 +53,7 @@ def run_stats(outs: Sequence[SimOutcome]) -> dict[str, Any]:
     }
 
 
-def request_runs(results: Results, r: Request) -> dict[str, list[SimOutcome]]:
+def request_runs(results: Results, r: Request) -> dict[str, list[RunOutcome]]:
     """The runs of request ``r`` per simulator: the first ones of its cell (seed order)."""
     out = {}
     for sim, want in (("rhcr", r.exact_runs), ("screen", r.screen_runs)):

@@ -9,13 +9,14 @@ run, flushed to disk), and a later evaluation into the same folder reuses every 
 whose inputs are identical, so an interrupted evaluation (Ctrl-C, SIGTERM, a lost machine once
 the files are committed) loses at most the runs in flight.
 
-A run is keyed by a digest of everything that decides its outcome: the layout's rows, the
-scenario, agent count, T, seed, replan, for RHCR the window and the planner's options, for the
-screen its planner, agent order and congestion rule, and the simulator's ``VERSION`` — so a
-repaired layout that differs by one tile, or a revised simulator, never reuses an old run. (A
-screened run does not depend on the batch it ran in.) Runs that timed out or failed are not
-reused (a new attempt may succeed); a run recorded without its per-step detail does not serve
-a request that needs it. A truncated last line (a write cut short) is skipped with a warning.
+A run is keyed (:mod:`nca_qd.scoring.keys`) by a digest of everything that decides its outcome:
+the layout's rows, the scenario, agent count, T, seed, replan, for RHCR the window and the
+planner's options, for the screen its planner, agent order and congestion rule, and the
+simulator's ``VERSION`` — so a repaired layout that differs by one tile, or a revised
+simulator, never reuses an old run. (A screened run does not depend on the batch it ran in.)
+Runs that timed out or failed are not reused (a new attempt may succeed); a run recorded
+without its per-step detail does not serve a request that needs it. A truncated last line (a
+write cut short) is skipped with a warning.
 
 Runs are keyed by the repaired layout, and the repair runs under a time limit: on a busier
 machine it may stop at another valid layout (33x36: Hamming 194 rather than the optimal 140),
@@ -28,104 +29,27 @@ from the same layouts.
 from __future__ import annotations
 
 import base64
-import hashlib
 import json
 import logging
 import os
 import threading
 import zlib
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from nca_qd.evaluation.records import SimOutcome
+from nca_qd.scoring.jobs import RunOutcome
 
 if TYPE_CHECKING:
-    from nca_qd.scoring.tasks import RepairOutcome
+    from nca_qd.scoring.jobs import RepairOutcome
 
 log = logging.getLogger("nca_qd.evaluate")
 
 FILENAME = "exact_runs.jsonl"
 SCREEN_FILENAME = "screen_runs.jsonl"
 REPAIR_FILENAME = "repairs.jsonl"
-
-
-def run_key(
-    rows: Sequence[str],
-    scenario: str,
-    n_agents: int,
-    T: int,
-    seed: int,
-    window: int,
-    replan: int,
-    planner: Mapping[str, Any] | None,
-) -> str:
-    """Digest of an exact run's inputs (with the simulator's version): equal keys, equal runs."""
-    from nca_qd.sim.rhcr import VERSION
-
-    spec = {
-        "rows": list(rows),
-        "scenario": scenario,
-        "n_agents": int(n_agents),
-        "T": int(T),
-        "seed": int(seed),
-        "window": int(window),
-        "replan": int(replan),
-        "planner": {k: planner[k] for k in sorted(planner or {})},
-        "rhcr_version": int(VERSION),
-    }
-    return _digest(spec)
-
-
-def screen_run_key(
-    rows: Sequence[str],
-    scenario: str,
-    n_agents: int,
-    T: int,
-    seed: int,
-    replan: int,
-    crowd_mean: float | None = None,
-) -> str:
-    """Digest of a screened run's inputs (the screen's default planner, agent order and
-    congestion rule with its crowding threshold, and its version): equal keys, equal runs."""
-    from nca_qd.sim import screen
-
-    spec = {
-        "rows": list(rows),
-        "scenario": scenario,
-        "n_agents": int(n_agents),
-        "T": int(T),
-        "seed": int(seed),
-        "replan": int(replan),
-        "planner": screen.PLANNER,
-        "priority": screen.PRIORITY,
-        "congestion": screen.CONGESTION,
-        "screen_version": int(screen.VERSION),
-    }
-    if crowd_mean is not None and float(crowd_mean) != screen.CROWD_MEAN:
-        spec["crowd_mean"] = float(crowd_mean)  # (absent at the default: recorded keys stay valid)
-    return _digest(spec)
-
-
-def repair_key(domain_name: str, layout: np.ndarray, options: Mapping[str, Any]) -> str:
-    """Digest of a repair's inputs: the domain, the layout before repair (shape and tiles) and
-    every option (N_s, agents, method, limits, seed)."""
-    a = np.ascontiguousarray(np.asarray(layout, dtype=np.int32))
-    spec = {
-        "domain": domain_name,
-        "shape": list(a.shape),
-        "layout_sha256": hashlib.sha256(a.tobytes()).hexdigest(),
-        "options": {k: options[k] for k in sorted(options)},
-    }
-    return _digest(spec)
-
-
-def _digest(spec: Mapping[str, Any]) -> str:
-    """First 32 hex digits of the SHA-256 of ``spec`` as sorted-key JSON (values JSON cannot
-    hold are written with ``str``); the recorded files' keys depend on this staying as it is."""
-    return hashlib.sha256(json.dumps(spec, sort_keys=True, default=str).encode()).hexdigest()[:32]
 
 
 def _pack(a: np.ndarray | None) -> dict[str, Any] | None:
@@ -202,14 +126,14 @@ class RunStore(JsonlRecords):
 
     simulator = "rhcr"
 
-    def get(self, key: str, need_detail: bool) -> SimOutcome | None:
+    def get(self, key: str, need_detail: bool) -> RunOutcome | None:
         """The recorded run for ``key`` if it completed (and kept its detail when needed)."""
         rec = self._runs.get(key)
         if rec is None or rec.get("timed_out") or rec.get("error"):
             return None
         if need_detail and not rec.get("detail"):
             return None
-        return SimOutcome(
+        return RunOutcome(
             self.simulator,
             int(rec["seed"]),
             float(rec["throughput"]),
@@ -222,7 +146,7 @@ class RunStore(JsonlRecords):
             _unpack(rec.get("tile_visits")),
         )
 
-    def add(self, key: str, outcome: SimOutcome) -> None:
+    def add(self, key: str, outcome: RunOutcome) -> None:
         """Append one finished run (flushed and synced, so a crash keeps it)."""
         detail = outcome.tasks_per_step is not None and outcome.tile_visits is not None
         rec = {
@@ -246,18 +170,18 @@ class RunStore(JsonlRecords):
 
 
 class ExactRunStore(RunStore):
-    """Exact RHCR runs: ``exact_runs.jsonl``, keyed by :func:`run_key`."""
+    """Exact RHCR runs: ``exact_runs.jsonl``, keyed by :func:`nca_qd.scoring.keys.exact_run_key`."""
 
 
 class ScreenRunStore(RunStore):
-    """Screened runs: ``screen_runs.jsonl``, keyed by :func:`screen_run_key`."""
+    """Screened runs: ``screen_runs.jsonl``, keyed by :func:`nca_qd.scoring.keys.screen_run_key`."""
 
     filename = SCREEN_FILENAME
     simulator = "screen"
 
 
 class RepairStore(JsonlRecords):
-    """Repaired layouts: ``repairs.jsonl``, keyed by :func:`repair_key`. Only repairs that
+    """Repaired layouts: ``repairs.jsonl``, keyed by :func:`nca_qd.scoring.keys.repair_key`. Only repairs that
     found a layout are recorded (a failed one may succeed on a new attempt)."""
 
     filename = REPAIR_FILENAME
@@ -265,7 +189,7 @@ class RepairStore(JsonlRecords):
 
     def get(self, key: str) -> RepairOutcome | None:
         """The recorded repair for ``key``, or None."""
-        from nca_qd.scoring.tasks import RepairOutcome
+        from nca_qd.scoring.jobs import RepairOutcome
 
         rec = self._runs.get(key)
         if rec is None:
@@ -291,7 +215,7 @@ class RepairStore(JsonlRecords):
 
         from nca_qd.errors import NcaQdError
         from nca_qd.io import load_map
-        from nca_qd.scoring.tasks import RepairOutcome
+        from nca_qd.scoring.jobs import RepairOutcome
 
         folder = self.path.parent
         stem = item_key.replace("@", "_")

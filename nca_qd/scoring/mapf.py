@@ -58,11 +58,21 @@ from nca_qd.errors import NcaQdError
 from nca_qd.interfaces import EvalBatch, ScoringContext, wants_ancillary
 from nca_qd.io import array_to_rows
 from nca_qd.scoring.backend import JobFailed, make_backend, map_jobs
-from nca_qd.scoring.memo import MEMO_FILE, EvalMemo, first_of_each, layout_key
+from nca_qd.scoring.jobs import (
+    ExactSettings,
+    RepairOutcome,
+    RunOutcome,
+    exact_job,
+    repair_job,
+    repair_options,
+)
+from nca_qd.scoring.keys import layout_key
+from nca_qd.scoring.memo import MEMO_FILE, EvalMemo, first_of_each
 from nca_qd.scoring.settings import ScoringConfig
-from nca_qd.scoring.tasks import ExactOutcome, RepairOutcome, repair_options, repair_task, rhcr_task
 from nca_qd.sim.free_flow import free_flow_throughput, rhcr_estimate
+from nca_qd.sim.rhcr import REPLAN as RHCR_REPLAN
 from nca_qd.sim.rhcr import VERSION as RHCR_VERSION
+from nca_qd.sim.rhcr import WINDOW as RHCR_WINDOW
 from nca_qd.sim.screen import crowd_mean_for
 
 log = logging.getLogger(__name__)
@@ -156,6 +166,9 @@ class MapfScorer:
         self.alpha = float(dcfg["alpha"] if alpha is None else alpha)
         self.failed_objective = float(dcfg.get("failed_repair_objective", 0.0))
         self.repair_opts = repair_options(dcfg, "train")
+        self.exact_settings = ExactSettings(
+            self.T, self.cfg.exact_time_limit_s, RHCR_WINDOW, RHCR_REPLAN, dict(self.cfg.planner or {})
+        )
         self.backend = make_backend(run_cfg.get("eval"))
         # The simulator a checkpoint's archive was scored with (a resume under another is refused).
         self.simulator_version = f"rhcr {RHCR_VERSION}"
@@ -193,7 +206,7 @@ class MapfScorer:
     # ------------------------------------------------------------------------------ stages
     def repair(self, layouts: np.ndarray) -> list[RepairOutcome]:
         jobs = [(self.domain.name, lay, self.repair_opts) for lay in layouts]
-        out = map_jobs(self.backend, repair_task, jobs)
+        out = map_jobs(self.backend, repair_job, jobs)
         return [
             o if isinstance(o, RepairOutcome) else RepairOutcome(None, "error", 0.0, None, 0.0, o.error)
             for o in out
@@ -269,27 +282,18 @@ class MapfScorer:
         each layout's tile usage ``[n, H, W]`` (visits / T, averaged over its runs; NaN where a
         run failed)."""
         jobs = [
-            (
-                r,
-                self.domain.name,
-                self.n_agents,
-                self.T,
-                s,
-                self.cfg.exact_time_limit_s,
-                self.ancillary,
-                self.cfg.planner,
-            )
+            (r, self.domain.name, self.n_agents, s, self.exact_settings, self.ancillary)
             for r in rows
             for s in seeds
         ]
-        out = map_jobs(self.backend, rhcr_task, jobs)
-        good = [isinstance(o, ExactOutcome) and o.error is None for o in out]
+        out = map_jobs(self.backend, exact_job, jobs)
+        good = [isinstance(o, RunOutcome) and o.error is None for o in out]
         tp = np.array([o.throughput if ok else np.nan for o, ok in zip(out, good)]).reshape(
             len(rows), len(seeds)
         )
         success = np.array([bool(ok and o.success) for o, ok in zip(out, good)]).reshape(tp.shape)
         for o in out:
-            err = o.error if isinstance(o, (ExactOutcome, JobFailed)) else None
+            err = o.error if isinstance(o, (RunOutcome, JobFailed)) else None
             if err:
                 log.warning("exact run failed: %s", err)
         visits = None

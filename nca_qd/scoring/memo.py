@@ -17,7 +17,6 @@ Failed jobs (errors, dead workers) are not remembered: they may succeed when tri
 
 from __future__ import annotations
 
-import hashlib
 import logging
 from collections.abc import Mapping
 from pathlib import Path
@@ -26,20 +25,12 @@ from typing import Any
 import numpy as np
 
 from nca_qd.io import save_npz
-from nca_qd.scoring.tasks import RepairOutcome
+from nca_qd.scoring.jobs import RepairOutcome
 
 log = logging.getLogger(__name__)
 
 MEMO_FILE = "eval_memo.npz"
 DIGEST_SIZE = 20  # SHA-1
-
-
-def layout_key(layout: np.ndarray) -> bytes:
-    """The digest a layout is remembered by (shape and tiles; the integer type does not matter)."""
-    arr = np.ascontiguousarray(layout, dtype=np.int16)
-    h = hashlib.sha1(np.asarray(arr.shape, np.int64).tobytes())
-    h.update(arr.tobytes())
-    return h.digest()
 
 
 def _key_array(keys: list[bytes]) -> np.ndarray:

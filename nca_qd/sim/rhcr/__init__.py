@@ -48,6 +48,9 @@ __all__ = [
 ]
 
 VERSION: int = int(_core.VERSION)
+# RHCR's planning window w and replanning period h as the paper ran it (its appendix: w = 10,
+# h = 5); the search's exact runs use them, the evaluation reads its own from evaluate.yaml.
+WINDOW, REPLAN = 10, 5
 
 
 @dataclass
@@ -74,8 +77,8 @@ def simulate(
     n_agents: int,
     T: int,
     seed: int,
-    window: int = 10,
-    replan: int = 5,
+    window: int = WINDOW,
+    replan: int = REPLAN,
     time_limit_s: float | None = None,
     record_paths: bool = False,
     pbs_max_nodes: int | str | None = "auto",
