@@ -52,3 +52,27 @@ def test_a_folder_without_runs_is_one_clear_error(tmp_path):
         compare([tmp_path], tmp_path / "out")
     with pytest.raises(NcaQdError, match="does not exist"):
         compare([tmp_path / "missing"], tmp_path / "out")
+
+
+def test_arms_that_differ_in_alpha_are_not_pooled(tmp_path):
+    """The paper compares CMA-MAE at α = 0, 1 and 5: one group each, and the paper's α = 5 row
+    beside the α = 5 arm only (a run saved with alpha: null takes its domain's α)."""
+
+    def run(path, seed, alpha, qd):
+        path.mkdir(parents=True)
+        (path / "config.yaml").write_text(
+            f"seed: {seed}\nalpha: {alpha}\nalgo:\n  name: cma_mae\ndomain:\n  name: warehouse_even\n"
+            "  alpha: 5\n  measures:\n    names: [entropy, shelf_components]\n"
+        )
+        (path / "metrics.csv").write_text(f"iteration,evaluations,qd_score,coverage\n1,10000,{qd},0.3\n")
+
+    run(tmp_path / "a5s0", 0, "null", 20000)
+    run(tmp_path / "a5s1", 1, 5, 21000)
+    run(tmp_path / "a0s0", 0, 0, 9000)
+    table, _ = compare([tmp_path], tmp_path / "out")
+    rows = [line for line in table.splitlines() if line.startswith("| warehouse_even")]
+    assert len(rows) == 2
+    assert rows[0].startswith("| warehouse_even (entropy+shelf_components) | cma_mae α=5 | 2 (0,1) |")
+    assert "20,500.00 ± 500.00" in rows[0] and rows[0].endswith("| 20,366.07 ± 653.46 / 0.33 ± 0.01 |")
+    assert rows[1].startswith("| warehouse_even (entropy+shelf_components) | cma_mae α=0 | 1 (0) |")
+    assert "20,366.07" not in rows[1]
