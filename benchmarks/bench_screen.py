@@ -51,12 +51,6 @@ compilation), and 101x102 with 1,400 agents x 5,000 steps (one run); each the be
 Scale (``BENCH_SCREEN_PARTS=scale``, not in the default set: minutes): the human 101x102
 warehouse tiled 2x2 (202x204) with 5,600 agents x 5,000 steps.
 
-Refit of the free-flow estimate's congested-layout share (``BENCH_SCREEN_PARTS=fit_congested``,
-not in the default set: RHCR on the generator's seed-0 set, about 1.5 CPU-hours unless
-``BENCH_SCREEN_RHCR_CACHE_SEED0`` holds it): prints the refitted coefficients beside
-:data:`nca_qd.sim.free_flow.CONGESTED_MODEL` and both estimates' held-out Spearman on the
-seed-1 set.
-
 Fidelity at a large size (``BENCH_SCREEN_PARTS=fidelity_large``, not in the default set: about
 2 CPU-hours at 101x102): every layout JSON of ``BENCH_SCREEN_LAYOUTS`` (a directory, e.g. an
 evaluation's ``layouts/``; ``*_unrepaired.json`` skipped) with ``BENCH_SCREEN_LARGE_AGENTS``
@@ -66,25 +60,10 @@ crowding threshold): exact RHCR (threads: all CPUs; cached in ``BENCH_SCREEN_RHC
 set) against the screen, run by run and by each layout's majority verdict; where both flow,
 the screen's throughput (raw, scaled by 1.3 and the free-flow estimate) against RHCR's.
 
-Drift of a calibrated threshold (``BENCH_SCREEN_PARTS=crowd_drift``, not in the default set:
-minutes of screening, no RHCR): the exactly-run layouts of a search's memo
-(``BENCH_SCREEN_MEMO``, here default ``results/manufacturing_a5/eval_memo.npz``) from iteration
-``BENCH_SCREEN_MEMO_FROM`` to ``BENCH_SCREEN_MEMO_UNTIL``, each threshold's majority verdicts
-against RHCR's: a threshold fitted on a search's first, mostly random layouts may misjudge the
-denser ones it finds later.
-
-A domain's crowding threshold (``BENCH_SCREEN_PARTS=crowd_threshold``, not in the default set:
-minutes of screening, no RHCR): the exactly-run layouts of a search's memo
-(``BENCH_SCREEN_MEMO``, here default ``results/warehouse_uneven_a5/eval_memo.npz``; only the
-iterations up to ``BENCH_SCREEN_MEMO_UNTIL``, default 28, the ones ``simulation.screen_crowd_mean``
-of warehouse_uneven.yaml was calibrated on) in two random halves. On the calibration half the
-screen runs under RHCR's rule alone, and the crowding rule is replayed on their crowding
-records for each threshold (the same verdicts, stop times and throughputs as screening with it);
-the threshold whose majority verdicts agree best with RHCR's is then screened for real on the
-other half, beside the domain's configured threshold and the default (17): majority agreement,
-Spearman of mean throughput, and the error of both estimates: scaled (1.3 x the screen's
-throughput) and free flow (its efficiency fitted on the calibration half's flowing layouts,
-the default congested share), so a domain's ``eval.screen_estimate`` is chosen on the same data.
+The fits of constants the product uses (the congested-layout share of the free-flow estimate,
+a domain's crowding threshold, a threshold's drift; formerly the parts ``fit_congested``,
+``crowd_threshold``, ``crowd_drift`` here) are the product's: ``python -m experiments.calibrate``
+(:mod:`nca_qd.calibration`). This benchmark draws its layouts from the same set.
 
 Issue 20's fidelity set as it reads (``BENCH_SCREEN_PARTS=fidelity_mixed``, not in the default
 set: about an hour of RHCR on 2 cores unless ``BENCH_SCREEN_RHCR_CACHE`` holds it): the 41
@@ -105,13 +84,13 @@ from pathlib import Path
 
 import numpy as np
 
-from nca_qd.errors import NcaQdError
+from nca_qd.calibration import layout_set
+from nca_qd.calibration.layout_set import AGENTS, SCENARIO, SEEDS, T, screen_figures, spearman
 from nca_qd.io import load_map
 from nca_qd.sim.free_flow import free_flow_throughput, rhcr_estimate
 from nca_qd.sim.scenario import build_scenario
 
 MAPS = Path("/work/shared/reference/maps/warehouse")
-SCENARIO, AGENTS, T, SEEDS = "warehouse_even", 200, 1000, [0, 1, 2, 3, 4]
 # Timed calls per speed figure (the best is reported: this machine's run-to-run spread is
 # about 15 %).
 REPEATS = int(os.environ.get("BENCH_SCREEN_REPEATS", 3))
@@ -123,127 +102,27 @@ EFFICIENCY = float(os.environ.get("BENCH_SCREEN_EFFICIENCY", 0.932))
 CONGESTED_SCALE = 1.3  # the scaled screen's (eval.screen_scale)
 
 
-def _find(name: str) -> Path | None:
+def _maps() -> Path | None:
+    """The folder of the paper's 33x36 warehouse maps (``NCA_QD_MAPS``/warehouse, else the
+    shared reference copy), or None."""
     env = os.environ.get("NCA_QD_MAPS")
-    dirs = [Path(env) / "warehouse"] if env else []
-    repo = Path(__file__).resolve().parents[1]
-    for d in dirs + [repo / "maps" / "warehouse", MAPS]:
-        if (d / name).is_file():
-            return d / name
+    for d in ([Path(env) / "warehouse"] if env else []) + [MAPS]:
+        if (d / "human_33x36.json").is_file():
+            return d
     return None
 
 
 def _load(name: str) -> list[str] | None:
-    p = _find(name)
-    return None if p is None else load_map(p).rows
-
-
-def _valid(rows: list[str]) -> bool:
-    try:
-        build_scenario(rows, SCENARIO, n_agents=AGENTS)
-        return True
-    except NcaQdError:
-        return False
-
-
-def _human_variant(rows: list[str], rng: np.random.Generator, p: float) -> list[str]:
-    """Remove each horizontal shelf run with probability p (its endpoints sometimes too)."""
-    g = np.array([list(r) for r in rows])
-    for r in range(g.shape[0]):
-        c = 0
-        while c < g.shape[1]:
-            if g[r, c] != "@":
-                c += 1
-                continue
-            e = c
-            while e < g.shape[1] and g[r, e] == "@":
-                e += 1
-            if rng.random() < p:
-                g[r, c:e] = "."
-                for rr in (r - 1, r + 1):
-                    if 0 <= rr < g.shape[0] and rng.random() < 0.5:
-                        g[rr, c:e] = np.where(g[rr, c:e] == "e", ".", g[rr, c:e])
-            c = e
-    return ["".join(x) for x in g]
-
-
-def _mutate(rows: list[str], rng: np.random.Generator, m: int) -> list[str]:
-    """Set m random interior tiles to '.', '@' or 'e' (workstations kept)."""
-    g = np.array([list(r) for r in rows])
-    h, w = g.shape
-    for _ in range(m):
-        r, c = rng.integers(1, h - 1), rng.integers(2, w - 2)
-        if g[r, c] != "w":
-            g[r, c] = rng.choice(list(".@@e"))
-    return ["".join(x) for x in g]
-
-
-def _random_warehouse(rng: np.random.Generator, h: int = 33, w: int = 36) -> list[str]:
-    """Shelf rows with random run lengths, aisle gaps and row spacing; workstations on the
-    left and right borders; endpoints above and below shelves."""
-    g = np.full((h, w), ".")
-    for r in range(1, h - 1, 3):
-        g[r, 0] = g[r, w - 1] = "w"
-    r = 2
-    while r < h - 2:
-        c = 2 + int(rng.integers(0, 2))
-        while c < w - 3:
-            run = int(rng.integers(2, 12))
-            end = min(c + run, w - 2)
-            g[r, c:end] = "@"
-            for rr in (r - 1, r + 1):
-                g[rr, c:end] = np.where(g[rr, c:end] == ".", "e", g[rr, c:end])
-            c = end + int(rng.integers(1, 4))
-        r += int(rng.integers(3, 5))
-    return ["".join(x) for x in g]
+    maps = _maps()
+    return None if maps is None else layout_set._load(maps, name)
 
 
 def make_layouts(n_min: int = 40, seed: int = 1) -> list[tuple[str, list[str]]]:
-    """The fidelity set: (name, rows), all valid 33x36 warehouse layouts."""
-    rng = np.random.default_rng(seed)
-    out = []
-    human = _load("human_33x36.json")
-    paper = _load("paper_cma-mae_a5_even_33x36.json")
-    unrep = _load("paper_cma-mae_a5_even_33x36_unrepaired.json")
-    for name, rows in (("human", human), ("paper", paper), ("paper_unrepaired", unrep)):
-        if rows is not None and _valid(rows):
-            out.append((name, list(rows)))
-    i = 0
-    while human is not None and i < 12:
-        rows = _human_variant(human, rng, p=0.1 + 0.05 * i)
-        if _valid(rows):
-            out.append((f"human_minus_{i}", rows))
-            i += 1
-    i = 0
-    while paper is not None and i < 12:
-        rows = _mutate(paper, rng, m=15 + 15 * i)
-        if _valid(rows):
-            out.append((f"paper_mut_{i}", rows))
-            i += 1
-    i = 0
-    while len(out) < n_min or i < 14:
-        rows = _random_warehouse(rng)
-        if _valid(rows):
-            out.append((f"random_{i}", rows))
-            i += 1
-    return out
+    return layout_set.make_layouts(_maps(), n_min, seed)
 
 
 def rhcr_figures(layouts, cache: str | None, seeds: list[int] = SEEDS, scenario: str = SCENARIO) -> dict:
-    """name -> list of (throughput, success, CPU-s) over ``seeds``, exact RHCR, threads=1
-    (cached under the layout's name for SEEDS, ``name@<first seed>`` for other seeds)."""
-    from nca_qd.sim.rhcr import simulate_many
-
-    done = json.loads(Path(cache).read_text()) if cache and Path(cache).is_file() else {}
-    tag = "" if list(seeds) == SEEDS else f"@{seeds[0]}"
-    for name, rows in layouts:
-        if name + tag in done:
-            continue
-        runs = simulate_many(rows, scenario, AGENTS, T, list(seeds), threads=1, pbs_max_nodes=PBS_MAX_NODES)
-        done[name + tag] = [[r.throughput, r.success, r.cpu_seconds] for r in runs]
-        if cache:
-            Path(cache).write_text(json.dumps(done))
-    return {name: done[name + tag] for name, _ in layouts}
+    return layout_set.rhcr_figures(layouts, cache, seeds, scenario, PBS_MAX_NODES)
 
 
 def split_half(layouts, exact: dict, cache: str | None) -> dict:
@@ -259,7 +138,7 @@ def split_half(layouts, exact: dict, cache: str | None) -> dict:
     return {
         "rhcr_split_half": f"seeds {SEEDS[0]}-{SEEDS[-1]} vs {other[0]}-{other[-1]}",
         "layouts": len(names),
-        "spearman_mean_throughput": round(_spearman(a, b), 3),
+        "spearman_mean_throughput": round(spearman(a, b), 3),
         "congestion_agreement_layout_majority": round(float(np.mean(ok_a == ok_b)), 3),
         "mean_abs_throughput_difference": round(float(np.mean(np.abs(a - b))), 3),
     }
@@ -267,27 +146,6 @@ def split_half(layouts, exact: dict, cache: str | None) -> dict:
 
 def _planners() -> list[str]:
     return [p for p in os.environ.get("BENCH_SCREEN_PLANNERS", "pibt,windowed").split(",") if p]
-
-
-def screen_figures(layouts, congestion: str, planner: str = "pibt") -> tuple[dict, float]:
-    """name -> list of (throughput, success, mean crowding over the run's checks, stop time / T)."""
-    from nca_qd.sim.screen import simulate_batch
-
-    t0 = time.perf_counter()
-    res = simulate_batch(
-        [rows for _, rows in layouts], SCENARIO, AGENTS, T, SEEDS, congestion=congestion, planner=planner
-    )
-    wall = time.perf_counter() - t0
-    return {
-        name: [[r.throughput, r.success, float(np.mean(r.crowding)), r.stop_time / T] for r in runs]
-        for (name, _), runs in zip(layouts, res)
-    }, wall
-
-
-def _spearman(x, y) -> float:
-    from scipy.stats import spearmanr
-
-    return float(spearmanr(x, y).statistic)
 
 
 def fidelity() -> None:
@@ -332,9 +190,9 @@ def fidelity() -> None:
             crowd = np.array([np.mean([r[2] for r in screen[n]]) for n in names])
             print(
                 f"spearman of RHCR mean throughput and minus the screen's mean crowding "
-                f"(full-horizon runs): {_spearman(ex_thr, -crowd):.3f}"
+                f"(full-horizon runs): {spearman(ex_thr, -crowd):.3f}"
             )
-        rho = _spearman(ex_thr, sc_thr)
+        rho = spearman(ex_thr, sc_thr)
         if planner == "pibt":
             est = rhcr_estimate(
                 [[r[0] for r in screen[n]] for n in names],
@@ -345,7 +203,7 @@ def fidelity() -> None:
             )
             print(
                 f"spearman of RHCR mean throughput and the screen's free-flow estimate "
-                f"(efficiency {EFFICIENCY}): {_spearman(ex_thr, est):.3f} (raw screen: {rho:.3f})"
+                f"(efficiency {EFFICIENCY}): {spearman(ex_thr, est):.3f} (raw screen: {rho:.3f})"
             )
         maj = float(np.mean((ex_ok.mean(1) > 0.5) == (sc_ok.mean(1) > 0.5)))
         run = float(np.mean(ex_ok == sc_ok))
@@ -406,10 +264,15 @@ def _memo_sample(path: Path, iterations: tuple[int, int], n: int, seed: int) -> 
 
 
 def fidelity_mixed() -> None:
-    """Issue 20's fidelity set as it reads: the held-out synthetic warehouse layouts (seed 1)
-    plus layouts of the three searches (warehouse even and uneven, manufacturing) that no
-    calibration saw; each screened as its domain's configuration screens it (threshold,
-    estimate), against exact RHCR at the search's node budget, with RHCR's split half beside."""
+    """The fits of constants the product uses (the congested-layout share of the free-flow estimate,
+    a domain's crowding threshold, a threshold's drift; formerly the parts ``fit_congested``,
+    ``crowd_threshold``, ``crowd_drift`` here) are the product's: ``python -m experiments.calibrate``
+    (:mod:`nca_qd.calibration`). This benchmark draws its layouts from the same set.
+
+    Issue 20's fidelity set as it reads: the held-out synthetic warehouse layouts (seed 1)
+        plus layouts of the three searches (warehouse even and uneven, manufacturing) that no
+        calibration saw; each screened as its domain's configuration screens it (threshold,
+        estimate), against exact RHCR at the search's node budget, with RHCR's split half beside."""
     from experiments.cli import compose_config
     from nca_qd.domains import make_domain
     from nca_qd.scoring.mapf import MapfScorer
@@ -458,10 +321,10 @@ def fidelity_mixed() -> None:
         a, b, est = col["a"][sel], col["b"][sel], col["est"][sel]
         return {
             "layouts": int(sel.sum()),
-            "rhcr_split_half_spearman": round(_spearman(a, b), 3),
+            "rhcr_split_half_spearman": round(spearman(a, b), 3),
             "rhcr_split_half_majority": round(float(np.mean(col["ok_a"][sel] == col["ok_b"][sel])), 3),
-            "screen_spearman": round(_spearman(a, est), 3),
-            "screen_spearman_raw": round(_spearman(a, col["raw"][sel]), 3),
+            "screen_spearman": round(spearman(a, est), 3),
+            "screen_spearman_raw": round(spearman(a, col["raw"][sel]), 3),
             "screen_majority": round(float(np.mean(col["ok_a"][sel] == col["ok_s"][sel])), 3),
             "rhcr_flow_share": round(float(np.mean(col["ok_a"][sel])), 3),
         }
@@ -562,7 +425,7 @@ def search_layouts() -> None:
     }
     for name, pred in (("screen", thr.mean(1)), ("free_flow_estimate", est), ("free_flow_alone", flow)):
         out[name] = {
-            "spearman": round(_spearman(truth[test], pred[test]), 3),
+            "spearman": round(spearman(truth[test], pred[test]), 3),
             f"top_{top}": top_overlap(pred),
         }
     out["rhcr_share_below_6"] = round(float(np.mean(truth < 6.0)), 3)
@@ -765,234 +628,6 @@ def fidelity_large() -> None:
     )
 
 
-def fit_congested() -> None:
-    """Refit :data:`nca_qd.sim.free_flow.CONGESTED_MODEL`: least squares of RHCR's share of
-    free flow on the layouts of the generator's seed-0 set with a congested screened run, then
-    the held-out Spearman on the seed-1 set (the fidelity part's layouts)."""
-    from nca_qd.sim.free_flow import CONGESTED_MODEL
-
-    def figures(seed: int, cache: str | None):
-        layouts = make_layouts(seed=seed)
-        names = [n for n, _ in layouts]
-        exact = rhcr_figures(layouts, cache)
-        screen, _ = screen_figures(layouts, "crowding")
-        flow = np.array([free_flow_throughput(build_scenario(r, SCENARIO), AGENTS) for _, r in layouts])
-        per_run = np.array([screen[n] for n in names])  # [n, seeds, 4]
-        y = np.array([np.mean([r[0] for r in exact[n]]) for n in names])
-        return per_run[..., 0], per_run[..., 1] > 0.5, per_run[..., 3], flow, y
-
-    cache = os.environ.get("BENCH_SCREEN_RHCR_CACHE")
-    fit_cache = os.environ.get("BENCH_SCREEN_RHCR_CACHE_SEED0")  # the seed-0 set's own cache
-    thr, ok, stop, flow, y = figures(0, fit_cache)
-    some = ~ok.all(1)
-    design = np.column_stack([np.ones(some.sum()), thr[some].mean(1) / flow[some], stop[some].mean(1)])
-    coef, *_ = np.linalg.lstsq(design, y[some] / flow[some], rcond=None)
-    thr1, ok1, stop1, flow1, y1 = figures(1, cache)
-    out = {
-        "fit_layouts": int(some.sum()),
-        "coefficients": [round(float(c), 3) for c in coef],
-        "shipped": list(CONGESTED_MODEL),
-        "held_out_spearman_refit": round(
-            _spearman(y1, rhcr_estimate(thr1, ok1, stop1, flow1, EFFICIENCY, tuple(coef))), 3
-        ),
-        "held_out_spearman_shipped": round(
-            _spearman(y1, rhcr_estimate(thr1, ok1, stop1, flow1, EFFICIENCY)), 3
-        ),
-    }
-    print(json.dumps(out))
-
-
-def _crowd_replay(crowd, tasks, stop0, ok0, threshold: float, replan: int = 5):
-    """The crowding rule replayed on runs made under RHCR's rule alone (``crowd`` [n, S, checks],
-    ``tasks`` [n, S, T], their stop times and verdicts): (success, throughput) per run had the
-    screen used ``threshold``."""
-    from nca_qd.sim.screen import CROWD_MIN_CHECKS
-
-    n_checks = np.arange(1, crowd.shape[-1] + 1)
-    made = n_checks * replan <= stop0[..., None]  # the checks each run reached
-    hit = made & (n_checks >= CROWD_MIN_CHECKS) & (np.cumsum(crowd, -1) >= threshold * n_checks)
-    first = np.where(hit.any(-1), hit.argmax(-1), -1)
-    stop = np.where(first >= 0, replan * (first + 1), stop0)
-    done = np.cumsum(tasks, -1)
-    thr = np.take_along_axis(done, (stop - 1)[..., None], -1)[..., 0] / tasks.shape[-1]
-    return ok0 & (first < 0), thr
-
-
-def _replay_records(runs):
-    """Screened runs made under RHCR's rule alone ([layout][seed]) as the arrays
-    ``_crowd_replay`` reads: crowding per check, tasks per step, stop times, verdicts."""
-    crowd = np.zeros((len(runs), len(SEEDS), T // 5))
-    tasks = np.zeros((len(runs), len(SEEDS), T))
-    for i, row in enumerate(runs):
-        for s, r in enumerate(row):
-            crowd[i, s, : len(r.crowding)] = r.crowding
-            tasks[i, s] = r.tasks_per_step
-    stop0 = np.array([[r.stop_time for r in row] for row in runs])
-    ok0 = np.array([[r.success for r in row] for row in runs])
-    return crowd, tasks, stop0, ok0
-
-
-def _memo_exact_layouts(memo, lo: int, hi: int):
-    """A search memo's exactly-run layouts of iterations ``lo``..``hi``: the domain, their
-    indices among the memo's exact entries, and a function giving any entries' scenarios."""
-    from nca_qd.io import array_to_rows
-    from nca_qd.layouts import get_layout
-    from nca_qd.scoring.keys import layout_key
-
-    scenario = json.loads(str(memo["fingerprint"]))["domain"]
-    tiles = get_layout(scenario, "domain").tiles
-    by_key = {layout_key(lay): i for i, lay in enumerate(memo["repair_layouts"])}
-    entries = [
-        j
-        for j, k in enumerate(memo["exact_keys"])
-        if bytes(k) in by_key and lo <= memo["exact_iteration"][j] <= hi
-    ]
-
-    def scenarios(entries_):
-        return [
-            build_scenario(
-                array_to_rows(memo["repair_layouts"][by_key[bytes(memo["exact_keys"][j])]], tiles), scenario
-            )
-            for j in entries_
-        ]
-
-    return scenario, entries, scenarios
-
-
-def _screen_in_chunks(scens, congestion: str, threshold: float | None = None):
-    """Screen scenarios 64 at a time (AGENTS, T, SEEDS): [scenario][seed] runs."""
-    from nca_qd.sim.screen import CROWD_MEAN, simulate_scenarios
-
-    crowd_mean = CROWD_MEAN if threshold is None else threshold
-    return [
-        row
-        for a in range(0, len(scens), 64)
-        for row in simulate_scenarios(
-            scens[a : a + 64], AGENTS, T, SEEDS, congestion=congestion, crowd_mean=crowd_mean
-        )
-    ]
-
-
-def crowd_drift() -> None:
-    """Whether a crowding threshold calibrated on a search's first iterations still judges the
-    layouts the search runs exactly later: each exactly-run layout of the memo's iterations
-    ``BENCH_SCREEN_MEMO_FROM``..``BENCH_SCREEN_MEMO_UNTIL``, screened (200 agents, T=1,000, 5
-    seeds) under RHCR's rule alone and the crowding rule replayed per threshold; majority
-    verdicts against RHCR's, and the layouts each side alone calls congested."""
-    path = Path(os.environ.get("BENCH_SCREEN_MEMO", "results/manufacturing_a5/eval_memo.npz"))
-    if not path.is_file():
-        print(f"crowd_drift: no memo at {path} (set BENCH_SCREEN_MEMO)")
-        return
-    lo = int(os.environ.get("BENCH_SCREEN_MEMO_FROM", 0))
-    hi = int(os.environ.get("BENCH_SCREEN_MEMO_UNTIL", 10**9))
-    memo = np.load(path)
-    _, entries, scenarios = _memo_exact_layouts(memo, lo, hi)
-    crowd, tasks, stop0, ok0 = _replay_records(_screen_in_chunks(scenarios(entries), "moved"))
-    rhcr = memo["exact_success"][entries].astype(bool).mean(1) > 0.5
-    print(
-        json.dumps(
-            {
-                "memo": str(path),
-                "iterations": [lo, min(hi, int(memo["exact_iteration"].max()))],
-                "layouts": len(entries),
-                "rhcr_flows": int(rhcr.sum()),
-            }
-        )
-    )
-    for x in np.arange(16.0, 30.01, 2.0):
-        flows = _crowd_replay(crowd, tasks, stop0, ok0, float(x))[0].mean(1) > 0.5
-        print(
-            json.dumps(
-                {
-                    "threshold": float(x),
-                    "majority_agreement": round(float(np.mean(flows == rhcr)), 3),
-                    "rhcr_flows_screen_congests": int(np.sum(rhcr & ~flows)),
-                    "rhcr_congests_screen_flows": int(np.sum(~rhcr & flows)),
-                }
-            )
-        )
-
-
-def crowd_threshold() -> None:
-    """Calibrate a domain's crowding threshold on half a search's memo, check it on the rest."""
-    from omegaconf import OmegaConf
-
-    from experiments.cli import compose_config
-    from nca_qd.sim.screen import CROWD_MEAN, crowd_mean_for
-
-    path = Path(os.environ.get("BENCH_SCREEN_MEMO", "results/warehouse_uneven_a5/eval_memo.npz"))
-    if not path.is_file():
-        print(f"crowd_threshold: no memo at {path} (set BENCH_SCREEN_MEMO)")
-        return
-    until = int(os.environ.get("BENCH_SCREEN_MEMO_UNTIL", 28))
-    memo = np.load(path)
-    scenario, entries, scenarios = _memo_exact_layouts(memo, int(memo["exact_iteration"].min()), until)
-    configured = crowd_mean_for(OmegaConf.to_container(compose_config("run", [f"domain={scenario}"]).domain))
-    order = np.random.default_rng(2).permutation(entries)
-    halves = {"calibration": np.sort(order[: len(order) // 2]), "check": np.sort(order[len(order) // 2 :])}
-
-    def screen(entries_, congestion, threshold=CROWD_MEAN):
-        return _screen_in_chunks(scenarios(entries_), congestion, threshold)
-
-    def verdicts(entries_):
-        ok = memo["exact_success"][entries_].astype(bool)
-        return ok.mean(1) > 0.5, memo["exact_throughput"][entries_].mean(1)
-
-    cal = halves["calibration"]
-    print(
-        f"== crowding threshold: {scenario}, {len(entries)} exactly-run layouts of {path} "
-        f"(iterations <= {until}), {len(cal)} to calibrate on, {len(halves['check'])} to check"
-    )
-    crowd, tasks, stop0, ok0 = _replay_records(screen(cal, "moved"))
-    rhcr_ok, _ = verdicts(cal)
-    grid = np.arange(14.0, 30.01, 0.25)
-    agree = [
-        float(np.mean((_crowd_replay(crowd, tasks, stop0, ok0, x)[0].mean(1) > 0.5) == rhcr_ok)) for x in grid
-    ]
-    best = float(grid[int(np.argmax(agree))])
-    print(json.dumps({"calibration_best_threshold": best, "calibration_agreement": round(max(agree), 3)}))
-
-    # The free-flow estimate's efficiency (RHCR's share of free flow where it flows), fitted
-    # as a search fits it: the mean share over the calibration half's flowing RHCR runs.
-    def free_flows(entries_):
-        return np.array([free_flow_throughput(scen, AGENTS) for scen in scenarios(entries_)])
-
-    flowed = memo["exact_success"][cal].astype(bool)
-    shares = (memo["exact_throughput"][cal] / free_flows(cal)[:, None])[flowed]
-    efficiency = float(shares.mean())
-    print(json.dumps({"free_flow_efficiency": round(efficiency, 4), "fitted_on_runs": int(flowed.sum())}))
-    chk = halves["check"]
-    rhcr_ok, rhcr_thr = verdicts(chk)
-    flow_chk = free_flows(chk)
-    for x in sorted({best, configured, CROWD_MEAN}):
-        t0 = time.perf_counter()
-        res = screen(chk, "crowding", x)
-        ok = np.array([[r.success for r in row] for row in res])
-        thr = np.array([[r.throughput for r in row] for row in res]).mean(1)
-        err = CONGESTED_SCALE * thr - rhcr_thr
-        stop = np.array([[r.stop_time / T for r in row] for row in res])
-        run_thr = np.array([[r.throughput for r in row] for row in res])
-        est = rhcr_estimate(run_thr, ok, stop, flow_chk, efficiency)
-        print(
-            json.dumps(
-                {
-                    "threshold": x,
-                    "layouts": len(chk),
-                    "screen_run_success": round(float(ok.mean()), 3),
-                    "rhcr_run_success": round(float(memo["exact_success"][chk].mean()), 3),
-                    "majority_agreement": round(float(np.mean((ok.mean(1) > 0.5) == rhcr_ok)), 3),
-                    "spearman": round(_spearman(rhcr_thr, thr), 3),
-                    "scaled_mae": round(float(np.abs(err).mean()), 3),
-                    "scaled_bias": round(float(err.mean()), 3),
-                    "free_flow_spearman": round(_spearman(rhcr_thr, est), 3),
-                    "free_flow_mae": round(float(np.abs(est - rhcr_thr).mean()), 3),
-                    "free_flow_bias": round(float((est - rhcr_thr).mean()), 3),
-                    "wall_s": round(time.perf_counter() - t0),
-                }
-            )
-        )
-
-
 def main() -> None:
     parts = os.environ.get("BENCH_SCREEN_PARTS", "fidelity,speed").split(",")
     if "scale" in parts:
@@ -1005,12 +640,10 @@ def main() -> None:
         search_layouts()
     if "fidelity_large" in parts:
         fidelity_large()
-    if "fit_congested" in parts:
-        fit_congested()
-    if "crowd_threshold" in parts:
-        crowd_threshold()
-    if "crowd_drift" in parts:
-        crowd_drift()
+    moved = {"fit_congested": "congested", "crowd_threshold": "crowd_threshold", "crowd_drift": "crowd_drift"}
+    for part in parts:
+        if part in moved:  # fits of constants the product uses are the product's (nca_qd.calibration)
+            print(f"{part}: now python -m experiments.calibrate fit={moved[part]} (nca_qd/calibration)")
     if "fidelity_mixed" in parts:
         fidelity_mixed()
 

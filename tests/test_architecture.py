@@ -17,7 +17,8 @@ import pytest
 PACKAGE = Path(__file__).resolve().parents[1] / "nca_qd"
 
 # The layers that run an experiment: what the generic layers below must never reach into.
-EXPERIMENT_LAYERS = {"pipeline", "experiment", "evaluation", "run_dir", "run_pictures"}
+# (``calibration`` re-derives the constants they use from runs: a layer above them all.)
+EXPERIMENT_LAYERS = {"pipeline", "experiment", "evaluation", "run_dir", "run_pictures", "calibration"}
 
 # unit -> units it must never import (a unit is a top-level module or subpackage of nca_qd)
 FORBIDDEN = {
@@ -59,6 +60,37 @@ def import_graph() -> dict[str, dict[str, list[str]]]:
                 if here and there and there != here:
                     graph[here][there].append(f"{rel}:{node.lineno}")
     return graph
+
+
+def outside_imports(package: Path = PACKAGE) -> list[str]:
+    """Every import of ``benchmarks`` or ``experiments`` in the package, as "file:line imports x"."""
+    found = []
+    for path in sorted(package.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else []
+            if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                names = [node.module]
+            found += [
+                f"{path.relative_to(package.parent)}:{node.lineno} imports {n}"
+                for n in names
+                if n.split(".")[0] in ("benchmarks", "experiments")
+            ]
+    return found
+
+
+def test_the_product_imports_nothing_from_the_benchmarks_or_the_commands():
+    """``benchmarks/`` times and reports, ``experiments/`` are entry points: the package needs
+    neither (a constant it uses is re-derived by ``nca_qd.calibration``, not by a benchmark)."""
+    found = outside_imports()
+    assert not found, "; ".join(found)
+
+
+def test_the_outside_import_check_sees_a_lazy_import(tmp_path):
+    pkg = tmp_path / "nca_qd"
+    (pkg / "sim").mkdir(parents=True)
+    (pkg / "sim" / "fit.py").write_text("def f():\n    from benchmarks.bench_screen import spearman\n")
+    (pkg / "ok.py").write_text("import numpy\nfrom nca_qd.sim import fit\n")
+    assert outside_imports(pkg) == ["nca_qd/sim/fit.py:2 imports benchmarks.bench_screen"]
 
 
 def test_the_package_graph_has_no_cycle():

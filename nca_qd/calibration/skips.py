@@ -1,4 +1,6 @@
-"""How often the screen's "no exact run" was wrong (issue 53, target 2).
+"""How often a search's screen was wrong to keep a layout from exact runs, and which crowding
+threshold would have sent it there: what set the threshold of the manufacturing and uneven
+domains (``simulation.screen_crowd_mean``) from 2026-11-29.
 
 A search screens each layout that comes to an occupied cell of its result archive and gives it
 exact runs only when the screen's prediction x (1 + ``eval.exact_margin``) reaches the cell's
@@ -11,13 +13,13 @@ it was when the layout first came (the best exact mean of earlier iterations in 
 from the memo; the lowest elite the layout ever faced, so the count errs towards "wrong"). Seeds
 come from the layout's key (the search's per-batch seeds are not stored).
 
-One JSON line per layout goes to ``--out`` as it finishes (a rerun skips layouts already there,
-so the check can be stopped and resumed); the summary is printed at the end:
+One JSON line per layout goes to ``out`` as it finishes (a rerun skips layouts already there,
+so the check can be stopped and resumed); the summary comes at the end:
 
-    python -m benchmarks.check_screen_skips --run-dir results/manufacturing_a5 --n 300 \
-        --out results/manufacturing_a5/screen_skips.jsonl
+    python -m experiments.calibrate fit=screen_skips run_dir=results/manufacturing_a5 n=300 \
+        out=results/manufacturing_a5/screen_skips.jsonl
 
-``--replay 18,22,26`` then screens the checked layouts again (N_e seeds, the domain's agents
+``replay=[18,22,26]`` then screens the checked layouts again (N_e seeds, the domain's agents
 and T) with each crowding threshold and prints which of them the search's rule would now send to
 exact runs (prediction x (1 + margin) >= the elite, at the run's ``exact_margin``, 0.2 and 0.3),
 improvers and others apart: what a threshold or margin would have caught, and what it costs (the
@@ -27,10 +29,10 @@ replayed with the run's configured efficiency (the search recalibrates it as it 
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -109,7 +111,7 @@ def summarise(records: list[dict]) -> dict:
     }
 
 
-def replay(records: list[dict], cfg, scoring, thresholds: list[float]) -> list[dict]:
+def replay(records: list[dict], cfg, scoring, thresholds: list[float]) -> Iterator[dict]:
     """Per crowding threshold: the checked layouts the search's exact-run rule would choose."""
     from nca_qd.sim.free_flow import free_flow_throughput, rhcr_estimate
     from nca_qd.sim.scenario import build_scenario
@@ -121,7 +123,6 @@ def replay(records: list[dict], cfg, scoring, thresholds: list[float]) -> list[d
     flow = np.array([free_flow_throughput(s, n_agents) for s in scens])
     elite = np.array([r["elite"] for r in records])
     better = np.array([r["mean"] > r["elite"] for r in records])
-    out = []
     seeds = list(range(int(sim.n_runs)))  # (the screen's streams are not RHCR's anyway)
     for threshold in thresholds:
         runs = [
@@ -143,86 +144,92 @@ def replay(records: list[dict], cfg, scoring, thresholds: list[float]) -> list[d
                 "improvers_chosen": f"{int((chosen & better).sum())} of {int(better.sum())}",
                 "others_chosen": f"{int((chosen & ~better).sum())} of {int((~better).sum())}",
             }
-        out.append(row)
-        print(json.dumps(out[-1]), flush=True)
-    return out
+        yield row
 
 
-def main(argv: list[str] | None = None) -> None:
+def _done(out: Path) -> dict[str, dict]:
+    """The records ``out`` holds by key (a last line cut short by a stop is dropped)."""
+    if not out.is_file():
+        return {}
+    lines = [line for line in out.read_text().splitlines() if line.strip()]
+    try:
+        return {r["key"]: r for r in map(json.loads, lines)}
+    except json.JSONDecodeError:
+        return {r["key"]: r for r in map(json.loads, lines[:-1])}
+
+
+def _run_exactly(p: dict, rows: list[str], cfg, scoring) -> dict:
+    """One skipped layout's exact runs as the search would have made them (seeds from its key)."""
+    from nca_qd.scoring.jobs import ExactSettings, exact_job
+    from nca_qd.sim.rhcr import REPLAN, WINDOW
+
+    sim = cfg.domain.simulation
+    T, n_runs, n_agents = int(sim.T), int(sim.n_runs), int(cfg.domain.n_agents.train)
+    seed0 = int(p["key"][:8], 16) % (2**31 - n_runs)
+    t0 = time.process_time()
+    settings = ExactSettings(T, scoring.exact_time_limit_s, WINDOW, REPLAN, dict(scoring.planner or {}))
+    runs = [exact_job(rows, cfg.domain.name, n_agents, seed0 + s, settings) for s in range(n_runs)]
+    return {
+        **{k: p[k] for k in ("key", "iteration", "cell", "elite")},
+        "seeds": [seed0 + s for s in range(n_runs)],
+        "throughput": [round(r.throughput, 4) for r in runs],
+        "success": [bool(r.success) for r in runs],
+        "cpu_s": [round(r.cpu_seconds, 2) for r in runs],
+        "errors": [r.error for r in runs if r.error],
+        "mean": round(float(np.mean([r.throughput for r in runs])), 4),
+        "process_cpu_s": round(time.process_time() - t0, 2),
+    }
+
+
+def check(
+    run_dir: Path,
+    n: int,
+    seed: int,
+    out: Path,
+    thresholds: list[float] | None = None,
+    replay_only: bool = False,
+) -> Iterator[dict]:
+    """Check ``n`` skipped layouts of the search in ``run_dir`` drawn with ``seed`` (those
+    ``out`` holds are not run again; each new one is appended as it ends), then replay the
+    screen at ``thresholds``. Yields what to print: what was looked at, the summary, the replay.
+    ``replay_only``: every layout ``out`` holds, none run now."""
     from omegaconf import OmegaConf
 
     from nca_qd.io import array_to_rows
     from nca_qd.layouts import get_layout
     from nca_qd.run_dir import load_run_config
-    from nca_qd.scoring.jobs import ExactSettings, exact_job
     from nca_qd.scoring.settings import ScoringConfig
-    from nca_qd.sim.rhcr import REPLAN, WINDOW
 
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--run-dir", required=True)
-    ap.add_argument("--n", type=int, default=300, help="skipped layouts to check, drawn at random")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", required=True, help="JSON lines, one per checked layout (resumable)")
-    ap.add_argument("--replay", default=None, help="crowding thresholds to replay the screen with")
-    ap.add_argument("--replay-only", action="store_true", help="replay the layouts in --out; run none")
-    args = ap.parse_args(argv)
-
-    run = Path(args.run_dir)
-    cfg = load_run_config(run)
-    memo = np.load(run / "eval_memo.npz")
+    cfg = load_run_config(run_dir)
+    memo = np.load(run_dir / "eval_memo.npz")
     scoring = ScoringConfig.from_cfg(OmegaConf.to_container(cfg.get("eval", {}), resolve=True))
-    sim = cfg.domain.simulation
-    T, n_runs, n_agents = int(sim.T), int(sim.n_runs), int(cfg.domain.n_agents.train)
     tiles = get_layout(cfg.domain.name, "domain").tiles
-
     pool = skipped_layouts(memo, cfg)
-    rng = np.random.default_rng(args.seed)
-    order = rng.permutation(len(pool))[: args.n]
-    out = Path(args.out)
-    done = {}
-    if out.is_file():
-        lines = [line for line in out.read_text().splitlines() if line.strip()]
-        try:
-            done = {r["key"]: r for r in map(json.loads, lines)}
-        except json.JSONDecodeError:  # a line cut short by a stop: drop it, keep the rest
-            done = {r["key"]: r for r in map(json.loads, lines[:-1])}
-    print(
-        f"{run}: {len(pool)} skipped layouts ({sum(math.isfinite(p['elite']) for p in pool)} in occupied "
-        f"cells); checking {len(order)}, {len(done)} already in {out}"
-    )
+    order = np.random.default_rng(seed).permutation(len(pool))[:n]
+    done = _done(out)
+    yield {
+        "run_dir": str(run_dir),
+        "skipped": len(pool),
+        "in_occupied_cells": sum(math.isfinite(p["elite"]) for p in pool),
+        "checking": 0 if replay_only else len(order),
+        "already_in_out": len(done),
+    }
     records = [done[pool[i]["key"]] for i in order if pool[i]["key"] in done]
-    if args.replay_only:  # every checked layout of the file, none run now
+    if replay_only:
         order, known = np.array([], int), {p["key"] for p in pool}
         records = [r for k, r in done.items() if k in known]
     for i in order:
         p = pool[i]
         if p["key"] in done:
             continue
-        rows = array_to_rows(memo["repair_layouts"][p["row"]], tiles)
-        seed0 = int(p["key"][:8], 16) % (2**31 - n_runs)
-        t0 = time.process_time()
-        settings = ExactSettings(T, scoring.exact_time_limit_s, WINDOW, REPLAN, dict(scoring.planner or {}))
-        runs = [exact_job(rows, cfg.domain.name, n_agents, seed0 + s, settings) for s in range(n_runs)]
-        rec = {
-            **{k: p[k] for k in ("key", "iteration", "cell", "elite")},
-            "seeds": [seed0 + s for s in range(n_runs)],
-            "throughput": [round(r.throughput, 4) for r in runs],
-            "success": [bool(r.success) for r in runs],
-            "cpu_s": [round(r.cpu_seconds, 2) for r in runs],
-            "errors": [r.error for r in runs if r.error],
-            "mean": round(float(np.mean([r.throughput for r in runs])), 4),
-        }
-        rec["process_cpu_s"] = round(time.process_time() - t0, 2)
+        rec = _run_exactly(p, array_to_rows(memo["repair_layouts"][p["row"]], tiles), cfg, scoring)
+        out.parent.mkdir(parents=True, exist_ok=True)
         with out.open("a") as fh:
             fh.write(json.dumps(rec) + "\n")
         records.append(rec)
-    print(json.dumps(summarise(records)))
-    if args.replay:
+    yield summarise(records)
+    if thresholds:
         by_key = {p["key"]: p for p in pool}
         for r in records:
             r["rows"] = array_to_rows(memo["repair_layouts"][by_key[r["key"]]["row"]], tiles)
-        replay(records, cfg, scoring, [float(x) for x in args.replay.split(",")])
-
-
-if __name__ == "__main__":
-    main()
+        yield from replay(records, cfg, scoring, thresholds)
