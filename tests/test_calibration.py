@@ -99,6 +99,13 @@ def test_the_best_threshold_is_the_one_that_agrees_with_rhcr():
     assert agreement == 1.0 and 15.0 < best <= 20.0 and best in GRID
 
 
+def test_the_scale_fit_recovers_a_planted_factor():
+    from nca_qd.calibration.crowding import fit_scale
+
+    screened = np.array([1.0, 2.0, 3.0, 4.0])
+    assert fit_scale(screened, 1.3 * screened) == pytest.approx(1.3)
+
+
 def test_the_congested_model_fit_recovers_planted_coefficients():
     from nca_qd.calibration.congested import fit
 
@@ -124,6 +131,7 @@ def test_the_threshold_calibration_runs_on_a_shipped_memo(capsys):
     lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
     assert lines[0]["domain"] == "warehouse_uneven" and lines[0]["calibrate_on"] + lines[0]["check_on"] == 6
     assert lines[1]["calibration_best_threshold"] in set(np.arange(14.0, 30.01, 0.25).tolist())
+    assert 0.5 < lines[1]["screen_scale"] < 5
     assert 0.5 < lines[2]["free_flow_efficiency"] <= 1.0
     checked = [x for x in lines if "majority_agreement" in x]
     # the best, the domain's configured threshold (warehouse_uneven.yaml: 21) and the default (17)

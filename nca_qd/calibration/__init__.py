@@ -3,9 +3,9 @@
 
 - ``fit=crowd_threshold memo=<run>/eval_memo.npz until=<iteration>``
   (:mod:`~nca_qd.calibration.crowding`): a domain's crowding threshold
-  (``domain.simulation.screen_crowd_mean``) and RHCR's share of free flow where it flows
-  (``eval.screen_efficiency``), fitted on half a search's exactly-run layouts, checked on the
-  other half.
+  (``domain.simulation.screen_crowd_mean``), the scaled estimate's factor (``eval.screen_scale``)
+  and RHCR's share of free flow where it flows (``eval.screen_efficiency``), fitted on half a
+  search's exactly-run layouts, checked on the other half.
 - ``fit=crowd_drift memo=... from_iteration=... until=...`` (same module): whether a threshold
   still holds on the layouts a search finds later.
 - ``fit=screen_skips run_dir=<run> n=300 out=<run>/screen_skips.jsonl replay=[18,20,22]``

@@ -11,8 +11,9 @@ records (:func:`crowd_replay`), so a grid of thresholds costs one screening.
 
 - :func:`calibrate_threshold`: the exactly-run layouts of iterations up to ``until`` in two
   random halves; the threshold whose majority verdicts agree best with RHCR's on one half, the
-  efficiency (RHCR's mean share of free flow over that half's flowing runs), then each
-  candidate threshold screened for real on the other half.
+  scaled estimate's factor at that threshold (``eval.screen_scale``) and the free-flow
+  estimate's efficiency (RHCR's mean share of free flow over that half's flowing runs), then
+  each candidate threshold screened for real on the other half.
 - :func:`threshold_drift`: the agreement of each threshold on the layouts of iterations
   ``lo``..``hi``: a threshold fitted on a search's first, mostly random layouts may misjudge
   the denser ones it finds later.
@@ -161,6 +162,13 @@ def best_threshold(crowd, tasks, stop0, ok0, rhcr_ok: np.ndarray) -> tuple[float
     return float(GRID[i]), agree[i]
 
 
+def fit_scale(screened: np.ndarray, rhcr: np.ndarray) -> float:
+    """The factor ``s`` of the scaled estimate (``eval.screen_scale``: RHCR's mean throughput
+    ≈ ``s`` x the screen's), least squares through the origin over layouts."""
+    screened, rhcr = np.asarray(screened, float), np.asarray(rhcr, float)
+    return float(screened @ rhcr / (screened @ screened))
+
+
 def calibrate_threshold(
     memo_path: Path, until: int, configured: float, seed: int = 2, limit: int | None = None
 ) -> Iterator[dict[str, Any]]:
@@ -186,7 +194,12 @@ def calibrate_threshold(
     best, agreement = best_threshold(
         crowd, tasks, stop0, ok0, memo["exact_success"][cal].astype(bool).mean(1) > 0.5
     )
-    yield {"calibration_best_threshold": best, "calibration_agreement": round(agreement, 3)}
+    replayed = crowd_replay(crowd, tasks, stop0, ok0, best)[1].mean(1)
+    yield {
+        "calibration_best_threshold": best,
+        "calibration_agreement": round(agreement, 3),
+        "screen_scale": round(fit_scale(replayed, memo["exact_throughput"][cal].mean(1)), 3),
+    }
 
     def free_flows(entries_) -> np.ndarray:
         return np.array([free_flow_throughput(scen, runs.n_agents) for scen in scenarios(list(entries_))])
