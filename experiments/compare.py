@@ -6,7 +6,10 @@ appendix.
 
 Runs are grouped by domain (with its measures) and algorithm; each group's final QD-score and
 coverage are reported as mean ± standard error over its runs (``comparison.md``, ``comparison.csv``)
-and drawn over evaluations with 95 % intervals (``comparison.png``). See :mod:`nca_qd.compare`.
+and drawn over evaluations with 95 % intervals (``comparison.png``). Arms differ by algorithm
+and α. Runs that hold an evaluation (``<run>/evaluation/summary.csv``, ``experiments.evaluate``)
+add the paper's tables 2, 3 and 5 beside its rows (``comparison_evaluation.csv``). See
+:mod:`nca_qd.compare` and :mod:`nca_qd.compare_evaluation`.
 """
 
 from __future__ import annotations

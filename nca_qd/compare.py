@@ -21,30 +21,10 @@ from pathlib import Path
 import numpy as np
 
 from nca_qd.errors import NcaQdError
+from nca_qd.paper import QD_TABLE as PAPER_TABLE
 from nca_qd.run_dir import METRICS_FILE, load_run_config
 
 METRICS = ("qd_score", "coverage")
-
-# The paper's appendix table (QD-score and coverage, mean ± s.e. over 5 runs, α = 5), by this
-# module's group: (domain with its measures, algorithm label) -> ((QD-score, s.e.), (coverage,
-# s.e.)). The maze's objective has no α.
-PAPER_TABLE = {
-    ("maze (n_walls+path_length)", "cma_mae"): ((22299.00, 612.46), (0.54, 0.01)),
-    ("maze (n_walls+path_length)", "dsage"): ((16446.60, 42.27), (0.40, 0.00)),
-    ("maze (n_walls+path_length)", "map_elites"): ((12446.80, 2207.08), (0.30, 0.05)),
-    ("maze (entropy+path_length)", "cma_mae"): ((12468.20, 342.09), (0.77, 0.02)),
-    ("maze (entropy+path_length)", "dsage"): ((1444.20, 52.60), (0.09, 0.00)),
-    ("maze (entropy+path_length)", "map_elites"): ((9288.80, 590.13), (0.57, 0.04)),
-    ("warehouse_even (entropy+shelf_components)", "cma_mae α=5"): ((20366.07, 653.46), (0.33, 0.01)),
-    ("warehouse_even (entropy+shelf_components)", "dsage α=5"): ((914.60, 33.09), (0.02, 0.00)),
-    ("warehouse_even (entropy+shelf_components)", "map_elites α=5"): ((6893.49, 1291.68), (0.15, 0.03)),
-    ("warehouse_uneven (entropy+shelf_components)", "cma_mae α=5"): ((19985.23, 493.98), (0.33, 0.01)),
-    ("warehouse_uneven (entropy+shelf_components)", "dsage α=5"): ((926.69, 23.42), (0.02, 0.00)),
-    ("warehouse_uneven (entropy+shelf_components)", "map_elites α=5"): ((5906.86, 1027.29), (0.14, 0.02)),
-    ("manufacturing (entropy+n_stations)", "cma_mae α=5"): ((6449.56, 1106.83), (0.18, 0.02)),
-    ("manufacturing (entropy+n_stations)", "dsage α=5"): ((378.33, 4.69), (0.02, 0.00)),
-    ("manufacturing (entropy+n_stations)", "map_elites α=5"): ((2398.99, 422.61), (0.14, 0.02)),
-}
 
 
 @dataclass
@@ -233,15 +213,24 @@ def plot_curves(path: Path, summaries: Sequence[GroupSummary], points: int = 200
 
 def compare(paths: Iterable[str | Path], out: str | Path) -> tuple[str, list[Path]]:
     """Aggregate the runs at ``paths`` into ``out``: ``comparison.md``, ``comparison.csv`` and
-    ``comparison.png``. Returns the table and the files written."""
+    ``comparison.png``; where runs hold an evaluation, the paper's tables 2, 3 and 5 too
+    (:mod:`nca_qd.compare_evaluation`, ``comparison_evaluation.csv``). Returns the Markdown and
+    the files written."""
     curves = [read_run(p) for p in find_runs(paths)]
     summaries = summarise(curves)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     table = table_markdown(summaries)
+    from nca_qd.compare_evaluation import read_arms, tables_markdown, write_scaling_csv
     from nca_qd.io import atomic_write_text
 
-    atomic_write_text(out / "comparison.md", table)
-    write_csv(out / "comparison.csv", summaries)
-    plot_curves(out / "comparison.png", summaries)
-    return table, [out / "comparison.md", out / "comparison.csv", out / "comparison.png"]
+    files = [out / "comparison.md", out / "comparison.csv", out / "comparison.png"]
+    arms = read_arms([(c.path, c.group[1], c.seed) for c in curves])
+    table += tables_markdown(arms)
+    atomic_write_text(files[0], table)
+    write_csv(files[1], summaries)
+    plot_curves(files[2], summaries)
+    if arms:
+        files.append(out / "comparison_evaluation.csv")
+        write_scaling_csv(files[-1], arms)
+    return table, files

@@ -76,3 +76,64 @@ def test_arms_that_differ_in_alpha_are_not_pooled(tmp_path):
     assert "20,500.00 ± 500.00" in rows[0] and rows[0].endswith("| 20,366.07 ± 653.46 / 0.33 ± 0.01 |")
     assert rows[1].startswith("| warehouse_even (entropy+shelf_components) | cma_mae α=0 | 1 (0) |")
     assert "20,366.07" not in rows[1]
+
+
+SUMMARY_HEAD = (
+    "domain,size,which,n_agents,layout,kind,cell,gen_seconds,repair_status,repair_seconds,similarity,hamming,"
+    "simulator,runs,completed,timed_out,errors,success_rate,throughput_success_mean,throughput_success_se,"
+    "throughput_mean,throughput_se,ci95_low,ci95_high,sim_seconds_mean\n"
+)
+
+
+def _summary_row(which, kind, sim, success, thr, thr_se="0.001", runs=50, sim_runs=None):
+    size, n = ("33x36", 200) if which == "train" else ("101x102", 1400)
+    gen = "0.002,optimal,1.0,0.95,120" if kind != "human" else ",given,,,"
+    return (
+        f"warehouse_even,{size},{which},{n},{kind},{kind},7,{gen},{sim},{sim_runs or runs},{runs},0,0,"
+        f"{success},{thr},{thr_se},{thr},{thr_se},0,0,1.0\n"
+    )
+
+
+def test_arms_with_an_evaluation_get_the_papers_tables_2_and_3(tmp_path):
+    """Each arm's best generator at S and S_eval (exact runs only) as mean ± s.e. over its
+    seeds beside the paper's row; its tiling baseline; the human layouts once per domain."""
+
+    def run(path, seed, alpha, success_eval, thr_eval, evaluated=True):
+        path.mkdir(parents=True)
+        (path / "config.yaml").write_text(
+            f"seed: {seed}\nalpha: {alpha}\nalgo:\n  name: cma_mae\ndomain:\n  name: warehouse_even\n"
+            "  alpha: 5\n  measures:\n    names: [entropy, shelf_components]\n"
+        )
+        (path / "metrics.csv").write_text("iteration,evaluations,qd_score,coverage\n1,10000,20000,0.3\n")
+        if not evaluated:
+            return
+        (path / "evaluation").mkdir()
+        (path / "evaluation" / "summary.csv").write_text(
+            SUMMARY_HEAD
+            + _summary_row("train", "nca", "rhcr", 1.0, 6.70)
+            + _summary_row("train", "nca", "screen", 0.0, 0.5)  # never set beside the paper's
+            + _summary_row("eval", "nca", "rhcr", success_eval, thr_eval, runs=20)
+            + _summary_row("eval", "tiling", "rhcr", 0.0, "", runs=20)
+            + _summary_row("train", "human", "rhcr", 0.0, "")
+        )
+
+    run(tmp_path / "s0", 0, 5, 0.9, 16.0)
+    run(tmp_path / "s1", 1, 5, 0.7, 15.0)
+    run(tmp_path / "a0", 0, 0, 0.0, "")
+    run(tmp_path / "s2", 2, 5, 0.0, "", evaluated=False)  # no evaluation: QD table only
+    table, files = compare([tmp_path], tmp_path / "out")
+    assert (tmp_path / "out" / "comparison_evaluation.csv") in files
+    scaling, runtime_part = table.split("## Generation and repair")
+    rows = {
+        line.split(" | ")[1]: line for line in scaling.splitlines() if line.startswith("| warehouse_even | ")
+    }
+    a5 = rows["cma_mae α=5"]
+    # S: 100 % in both seeds; S_eval: (90 + 70) / 2 = 80 ± 10 %, throughput (16 + 15) / 2 = 15.5 ± 0.5
+    assert "| 0,1 | 100 ± 0 % (2 seeds × ≥ 50 runs), 6.70 ± 0.00 |" in a5
+    assert "| 80 ± 10 % (2 seeds × ≥ 20 runs), 15.50 ± 0.50 |" in a5
+    assert a5.endswith("| 100 %, 6.74 ± 0.00 / 90 %, 16.01 ± 0.00 |")
+    assert "| — | 0 ± 0 % (2 seeds × ≥ 20 runs), N/A | — |" in rows["tiling of cma_mae α=5"]
+    assert rows["cma_mae α=0"].endswith("| 100 %, 6.79 ± 0.00 / 0 %, N/A |")
+    assert sum(line.startswith("| warehouse_even | human |") for line in scaling.splitlines()) == 1
+    runtime = [line for line in runtime_part.splitlines() if "Hamming 120" in line]
+    assert len(runtime) == 2 and "Δ 0.95" in runtime[0]
