@@ -79,10 +79,20 @@ class Objective:
         self.generator = generator
         self.evaluator = domain.make_evaluator(run_cfg)
         self.metric_names = tuple(getattr(self.evaluator, "metric_names", ()))
+        # NCA phases scored per generator (eval.phases; nca_qd/scoring/phases.py)
+        cfg = getattr(self.evaluator, "cfg", None)
+        self.phases = int(getattr(cfg, "phases", 1))
+        if self.phases > 1 and not hasattr(generator, "trajectory"):
+            raise NcaQdError(
+                f"eval.phases={self.phases} needs an NCA generator (a direct search has one phase)"
+            )
 
     def __call__(self, solutions: jax.Array, key: jax.Array, context=None) -> EvalBatch:
         t0 = time.perf_counter()
-        regions = self.generator.generate(solutions, self.seed, self.n_iters)
+        if self.phases > 1:  # [b, P, H, W]: iterations C .. C + P - 1
+            regions = self.generator.trajectory(solutions, self.seed, self.n_iters, self.phases - 1)[0]
+        else:
+            regions = self.generator.generate(solutions, self.seed, self.n_iters)
         if not self.metric_names:  # a jitted scorer: keep generation and scoring fused
             return self.evaluator(regions, key, context)
         regions = np.asarray(regions)  # waits for the device: the generation time is real

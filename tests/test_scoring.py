@@ -11,6 +11,7 @@ import sys
 import time
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 from hypothesis import given
@@ -678,6 +679,7 @@ def test_a_loaded_machine_gives_the_same_warehouse_search(tmp_path, slow_clock):
     [
         (["eval.exact=sometimes"], "eval.exact must be one of selective, all"),
         (["eval.screen_estimate=guess"], "eval.screen_estimate must be one of scaled, free_flow"),
+        (["eval.phases=0"], "eval.phases must be an integer >= 1, got 0"),
         (
             ["eval.scheduler=tcp://127.0.0.1:9", "eval.connect_timeout_s=1"],
             "cannot reach the Dask scheduler at tcp://127.0.0.1:9",
@@ -766,3 +768,69 @@ def test_a_run_saved_before_a_setting_is_read_through_the_migration(tmp_path):
     # the shipped even search predates both keys and ran with the scaled screen
     shipped = load_run_config(Path(__file__).parents[1] / "results/warehouse_even_a5")
     assert ScoringConfig.from_cfg(shipped.eval).screen_estimate == "scaled"
+
+
+def _scorer(extra):
+    from nca_qd.domains import make_domain
+
+    cfg = compose_config("run", TINY_WAREHOUSE + ["eval.workers=0", *extra])
+    domain = make_domain(cfg.domain)
+    return domain, domain.make_evaluator(cfg)
+
+
+def test_two_phases_give_each_generator_the_lower_of_its_phases_scores():
+    """eval.phases=2: each generator is scored by its layouts at C and C + 1 and gets the
+    lower objective; its measures are its C layout's. Checked against the one-phase scorer on
+    the same layouts and key (each exact, so both score every layout the same way)."""
+    domain, two = _scorer(["eval.phases=2", "eval.exact=all"])
+    _, one = _scorer(["eval.exact=all"])
+    try:
+        rng = np.random.default_rng(3)
+        h, w = domain.gen_shape("train")
+        regions = rng.integers(0, domain.n_tiles, (3, 2, h, w))
+        regions[0, 1] = regions[0, 0]  # a generator that settled: both phases alike
+        key = jax.random.PRNGKey(7)
+        ev2 = two(regions, key)
+        ev1 = one(regions.reshape(6, h, w), key)
+        f1 = np.asarray(ev1.objective).reshape(3, 2)
+        ok1 = np.asarray(ev1.valid).reshape(3, 2)
+        np.testing.assert_array_equal(ev2.valid, ok1.all(1))
+        want = np.where(ok1.all(1), f1.min(1), 0.0)
+        np.testing.assert_allclose(ev2.objective, want, rtol=1e-6)
+        np.testing.assert_allclose(
+            ev2.result_objective,
+            np.where(
+                np.asarray(ev1.result_valid).reshape(3, 2).all(1),
+                np.asarray(ev1.result_objective).reshape(3, 2).min(1),
+                0.0,
+            ),
+            rtol=1e-6,
+        )
+        np.testing.assert_array_equal(ev2.measures, np.asarray(ev1.measures)[::2])
+        np.testing.assert_allclose(ev2.extras["phase_objective"], f1, rtol=1e-6)
+        assert len(ev2.extras["repair_status"]) == 3 and np.shape(ev2.extras["repaired"])[0] == 3
+        assert ev2.valid[0] and ev2.objective[0] == pytest.approx(f1[0, 0])  # settled: as one phase
+        with pytest.raises(ValueError, match="eval.phases is 2"):
+            two(regions[:, 0], key)
+    finally:
+        two.close()
+        one.close()
+
+
+def test_a_two_phase_search_scores_the_layouts_at_c_and_c_plus_1(tmp_path, monkeypatch):
+    """The objective grows each generator's layouts at C and C + 1 (the NCA's own trajectory)."""
+    from nca_qd.domains import make_domain
+    from nca_qd.pipeline import make_generator, make_objective
+
+    cfg = compose_config("run", TINY_WAREHOUSE + ["eval.workers=0", "eval.phases=2"])
+    domain = make_domain(cfg.domain)
+    generator = make_generator(domain)
+    objective = make_objective(domain, generator, cfg)
+    seen = []
+    monkeypatch.setattr(objective, "evaluator", lambda regions, key, context=None: seen.append(regions))
+    objective.metric_names = ()  # (hand the regions straight to the stand-in scorer)
+    genomes = np.asarray(jax.random.normal(jax.random.PRNGKey(0), (2, generator.n_params))) * 0.5
+    objective(genomes, jax.random.PRNGKey(1))
+    seed, c = domain.seed(domain.gen_shape("train")), domain.nca_iters("train")
+    np.testing.assert_array_equal(seen[0][:, 0], np.asarray(generator.generate(genomes, seed, c)))
+    np.testing.assert_array_equal(seen[0][:, 1], np.asarray(generator.generate(genomes, seed, c + 1)))

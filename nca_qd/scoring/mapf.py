@@ -57,6 +57,7 @@ import numpy as np
 from nca_qd.errors import NcaQdError
 from nca_qd.interfaces import EvalBatch, ScoringContext, wants_ancillary
 from nca_qd.io import array_to_rows
+from nca_qd.scoring import phases
 from nca_qd.scoring.backend import JobFailed, make_backend, map_jobs
 from nca_qd.scoring.jobs import (
     ExactSettings,
@@ -389,8 +390,15 @@ class MapfScorer:
 
     # ------------------------------------------------------------------------------ batch
     def __call__(self, regions, key, context: ScoringContext | None = None) -> EvalBatch:
-        """Score one batch, one stage after the other (see the module docstring)."""
-        layouts = np.stack([self.domain.assemble(r) for r in np.asarray(regions)])
+        """Score one batch, one stage after the other (see the module docstring). ``regions``
+        ``[b, H, W]``, or ``[b, P, H, W]``: each generator's ``eval.phases`` NCA phases
+        (:mod:`nca_qd.scoring.phases`)."""
+        regions = np.asarray(regions)
+        phases = regions.shape[1] if regions.ndim == 4 else 1
+        if phases != self.cfg.phases:
+            raise ValueError(f"eval.phases is {self.cfg.phases}, the batch holds {phases} phase(s)")
+        flat = regions.reshape(-1, *regions.shape[-2:])
+        layouts = np.stack([self.domain.assemble(r) for r in flat])
         seeds, rng = self._seeds(key)
         iteration = context.iteration if context is not None else 0
         work = _Work(layouts=layouts, seeds=seeds, rng=rng, iteration=iteration)
@@ -428,7 +436,12 @@ class MapfScorer:
         the memo already holds (those layouts need neither screen nor exact runs)."""
         b = len(w.layouts)
         w.measures = np.asarray(self.domain.measures(w.fixed), dtype=np.float32)
-        w.elite = np.asarray(context.result_elite(w.measures)) if context is not None else np.full(b, -np.inf)
+        p = self.cfg.phases  # each phase is compared with the elite of its generator's cell
+        cells_of = phases.first_phase(w.measures, p)
+        elite = (
+            np.asarray(context.result_elite(cells_of)) if context is not None else np.full(b // p, -np.inf)
+        )
+        w.elite = phases.spread(elite, p)
         w.known = np.full(b, np.nan)
         if self.ancillary:
             w.visits = np.full(w.fixed.shape, np.nan)
@@ -469,7 +482,20 @@ class MapfScorer:
     def _stage_choose(self, w: _Work) -> None:
         """Which fresh layouts get exact runs (:func:`choose_exact`)."""
         predicted = np.nan_to_num(w.predicted, nan=-np.inf)
-        w.run_exact = choose_exact(predicted, w.elite, w.ok & w.fresh, self.cfg, w.rng)
+        p = self.cfg.phases
+        if p == 1:
+            w.run_exact = choose_exact(predicted, w.elite, w.ok & w.fresh, self.cfg, w.rng)
+            return
+        # per generator: the lowest over its phases of what is known or predicted
+        value = np.where(np.isfinite(w.known), w.known, predicted)
+        chosen = choose_exact(
+            phases.lowest(value, p),
+            phases.first_phase(w.elite, p),
+            phases.every(w.ok, p) & ~phases.every(~w.fresh, p),
+            self.cfg,
+            w.rng,
+        )
+        w.run_exact = phases.spread(chosen, p) & w.ok & w.fresh
 
     def _stage_exact(self, w: _Work) -> None:
         """Exact RHCR for the chosen layouts (each distinct one once, remembered)."""
@@ -510,23 +536,29 @@ class MapfScorer:
             "exact_reused": int(np.isfinite(w.known).sum() + n_chosen - w.n_simulated),
             **w.seconds,
         }
+        extras = {
+            "metrics": metrics,
+            "repaired": w.fixed,
+            "unrepaired": w.layouts,
+            "similarity": w.similarity,
+            "screened": w.screened,
+            "exact": w.exact,
+            "repair_status": [r.status for r in w.repaired],
+            # tile usage over the generated region (NaN: no exact run of that layout)
+            **({"ancillary": self.domain.layout.region(w.visits)} if w.visits is not None else {}),
+        }
+        valid, result_valid, measures = ok, ok & has_exact, w.measures
+        if self.cfg.phases > 1:  # one generator, its lowest phase (nca_qd/scoring/phases.py)
+            f_opt, f_res, valid, result_valid, measures, extras = phases.combine(
+                f_opt, f_res, ok, has_exact, w.measures, extras, self.cfg.phases, self.failed_objective
+            )
         return EvalBatch(
             objective=f_opt.astype(np.float32),
-            measures=w.measures,
+            measures=measures,
             result_objective=f_res.astype(np.float32),
-            valid=ok,
-            result_valid=ok & has_exact,
-            extras={
-                "metrics": metrics,
-                "repaired": w.fixed,
-                "unrepaired": w.layouts,
-                "similarity": w.similarity,
-                "screened": w.screened,
-                "exact": w.exact,
-                "repair_status": [r.status for r in w.repaired],
-                # tile usage over the generated region (NaN: no exact run of that layout)
-                **({"ancillary": self.domain.layout.region(w.visits)} if w.visits is not None else {}),
-            },
+            valid=valid,
+            result_valid=result_valid,
+            extras=extras,
         )
 
     def close(self) -> None:

@@ -44,6 +44,8 @@ class ScoringConfig:
     # exact planner knobs (plan_time_limit_s, pbs_max_nodes, prioritize_start) for the search's
     # runs; missing keys keep RHCR's defaults as the paper ran it
     planner: dict[str, Any] = field(default_factory=dict)
+    # NCA phases scored per generator, C .. C + phases - 1; it gets the lowest (1: the paper's)
+    phases: int = 1
 
     @classmethod
     def from_cfg(cls, cfg: Mapping[str, Any] | None) -> ScoringConfig:
@@ -75,6 +77,7 @@ class ScoringConfig:
             screen_empty_cells=bool(cfg.get("screen_empty_cells", cls.screen_empty_cells)),
             memo=bool(cfg.get("memo", cls.memo)),
             planner=planner_options(cfg, "eval."),
+            phases=_phases(cfg.get("phases", cls.phases)),
         )
         if not 0.0 <= out.exact_random_share <= 1.0:
             raise NcaQdError(f"eval.exact_random_share must be in [0, 1], got {out.exact_random_share}")
@@ -94,3 +97,9 @@ def _three_numbers(value: Any) -> tuple[float, float, float]:
     if len(out) != 3 or not all(np.isfinite(out)):
         raise NcaQdError(f"eval.screen_congested must be three finite numbers [a, b, c], got {value!r}")
     return out  # type: ignore[return-value]
+
+
+def _phases(value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise NcaQdError(f"eval.phases must be an integer >= 1, got {value!r}")
+    return value
