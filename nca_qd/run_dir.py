@@ -36,6 +36,9 @@ LEGACY_SETTINGS: dict[str, Any] = {
     # the congested-layout share of the free-flow estimate, fitted against exact simulator
     # version 3, before the version-4 refit
     "eval.screen_congested": list(CONGESTED_MODEL_V3),
+    # the exact planner's start rules before run.yaml named them (2026-11-29): RHCR's own
+    "eval.prioritize_start": True,
+    "eval.starts": "random",
 }
 
 

@@ -834,3 +834,30 @@ def test_a_two_phase_search_scores_the_layouts_at_c_and_c_plus_1(tmp_path, monke
     seed, c = domain.seed(domain.gen_shape("train")), domain.nca_iters("train")
     np.testing.assert_array_equal(seen[0][:, 0], np.asarray(generator.generate(genomes, seed, c)))
     np.testing.assert_array_equal(seen[0][:, 1], np.asarray(generator.generate(genomes, seed, c + 1)))
+
+
+def test_every_planner_setting_has_its_default_in_the_yamls_and_the_shipped_memos_still_load():
+    """Each exact-planner knob is named in run.yaml (the search) and evaluate.yaml (the
+    evaluation), so none falls back to a default in code; naming them must not change what a
+    remembered result is keyed by: a scorer built from a shipped run's saved config has the
+    fingerprint its memo was written under."""
+    import json
+
+    from omegaconf import OmegaConf
+
+    from nca_qd.domains import make_domain
+    from nca_qd.run_dir import load_run_config
+    from nca_qd.sim.rhcr import PLANNER_KEYS
+
+    conf = Path(__file__).parents[1] / "experiments/conf"
+    assert set(PLANNER_KEYS) <= set(OmegaConf.load(conf / "run.yaml").eval)
+    assert set(PLANNER_KEYS) <= set(OmegaConf.load(conf / "evaluate.yaml").exact)
+    for run in ("warehouse_even_qd/cma_mae_a5_s0", "manufacturing_a5", "warehouse_uneven_a5"):
+        run_dir = Path(__file__).parents[1] / "results" / run
+        cfg = load_run_config(run_dir)
+        saved = json.loads(str(np.load(run_dir / "eval_memo.npz")["fingerprint"]))
+        scorer = make_domain(cfg.domain).make_evaluator(OmegaConf.merge(cfg, {"eval": {"workers": 0}}))
+        try:
+            assert json.loads(scorer.fingerprint) == saved, run
+        finally:
+            scorer.close()

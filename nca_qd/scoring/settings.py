@@ -41,8 +41,9 @@ class ScoringConfig:
     exact_time_limit_s: float | None = None
     screen_empty_cells: bool = False
     memo: bool = True
-    # exact planner knobs (plan_time_limit_s, pbs_max_nodes, prioritize_start) for the search's
-    # runs; missing keys keep RHCR's defaults as the paper ran it
+    # exact planner knobs (nca_qd.sim.rhcr.PLANNER_KEYS, each named in run.yaml) for the search's
+    # runs, as planner_options keys them: a knob at RHCR's own behaviour is left out, so keys and
+    # memo fingerprints of runs made before it was named stay valid
     planner: dict[str, Any] = field(default_factory=dict)
     # NCA phases scored per generator, C .. C + phases - 1; it gets the lowest (1: the paper's)
     phases: int = 1

@@ -278,7 +278,8 @@ def planner_options(cfg: Mapping[str, Any] | None, where: str = "") -> dict[str,
             raise NcaQdError(
                 f"{where}prioritize_start must be true or false, got {cfg['prioritize_start']!r}"
             )
-        out["prioritize_start"] = cfg["prioritize_start"]
+        if not cfg["prioritize_start"]:  # (absent for the default: keys of earlier runs stay valid)
+            out["prioritize_start"] = False
     if "starts" in cfg:
         if cfg["starts"] not in STARTS:
             raise NcaQdError(f"{where}starts must be one of {', '.join(STARTS)}, got {cfg['starts']!r}")
