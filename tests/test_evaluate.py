@@ -491,7 +491,6 @@ def test_bad_input_is_one_line_and_exit_2(case, expect, tmp_path, tiny_run, monk
 def test_n_shelves_sets_the_shelf_count_of_its_size_only(tiny_run):
     """n_shelves.eval (the paper's released S_eval layouts hold 2,500 shelves where its table
     says 2,250) changes N_s at S_eval; S keeps the run's count."""
-    from nca_qd.evaluation.layouts import repair_opts
     from nca_qd.evaluation.plan import Plan, validated
 
     e = validated(
@@ -499,23 +498,23 @@ def test_n_shelves_sets_the_shelf_count_of_its_size_only(tiny_run):
     )
     d = OmegaConf.to_container(compose_config("run", TINY_RUN).domain, resolve=True)
     plan = Plan(e, d, "warehouse_even")
-    assert repair_opts(e, d, plan, plan.s_eval)["n_shelves"] == 30
-    assert repair_opts(e, d, plan, plan.s_train)["n_shelves"] == 12
+    assert plan.repair_options(plan.s_eval)["n_shelves"] == 30
+    assert plan.repair_options(plan.s_train)["n_shelves"] == 12
     e_default = validated(OmegaConf.to_container(compose_config("evaluate", [f"run_dir={tiny_run}"])))
-    assert repair_opts(e_default, d, plan, plan.s_eval)["n_shelves"] == 24
+    plan = Plan(e_default, d, "warehouse_even")
+    assert plan.repair_options(plan.s_eval)["n_shelves"] == 24
 
 
 def test_repair_tie_break_comes_from_the_run_unless_this_command_overrides_it(tiny_run):
     """A run repaired with tie_break=none is evaluated with none (its own repair); the
     command's repair.tie_break=random overrides it at every size."""
-    from nca_qd.evaluation.layouts import repair_opts
     from nca_qd.evaluation.plan import Plan, validated
 
     def opts(cmd: list[str], run: list[str]) -> list[str]:
         e = validated(OmegaConf.to_container(compose_config("evaluate", [f"run_dir={tiny_run}", *cmd])))
         d = OmegaConf.to_container(compose_config("run", [*TINY_RUN, *run]).domain, resolve=True)
         plan = Plan(e, d, "warehouse_even")
-        return [repair_opts(e, d, plan, s)["tie_break"] for s in (plan.s_train, plan.s_eval)]
+        return [plan.repair_options(s)["tie_break"] for s in (plan.s_train, plan.s_eval)]
 
     assert opts([], ["domain.repair.tie_break=none"]) == ["none", "none"]
     assert opts([], []) == ["random", "random"]  # the domains' default
@@ -811,7 +810,7 @@ def test_ctrl_c_during_the_screen_stops_the_exact_runs_at_once(monkeypatch):
             0,
             backend,
             ExactSettings(20, None, 10, 5, {}),
-            {},
+            ev.ScreenSettings("all", 5, 17.0, None, True),
             progress=False,
         )
     assert backend.aborted.is_set()

@@ -55,14 +55,20 @@ from nca_qd.evaluation.layouts import (
     build_layouts,
     generate_timed,
     human_layout,
-    interpolate_iters,
     load_run,
     pick_cells,
     repair_all,
     tile_layout,
 )
 from nca_qd.evaluation.outputs import OUTPUT_PATTERNS, remove_stale_outputs, write_outputs
-from nca_qd.evaluation.plan import Plan, validated
+from nca_qd.evaluation.plan import (
+    Plan,
+    ScreenSettings,
+    SelectSettings,
+    exact_settings,
+    interpolate_iters,
+    validated,
+)
 from nca_qd.evaluation.plots import plot_curves, plot_sizes, plot_tasks, plot_tile_usage
 from nca_qd.evaluation.records import (
     SIMULATORS,
@@ -75,7 +81,7 @@ from nca_qd.evaluation.records import (
     size_map,
     size_str,
 )
-from nca_qd.evaluation.runs import exact_settings, merge_requests, screen_group, simulate_cells
+from nca_qd.evaluation.runs import merge_requests, screen_group, simulate_cells
 from nca_qd.evaluation.selection import Selection, select_scalable, write_selection
 from nca_qd.evaluation.stats import mean_se_ci, request_runs, run_stats
 from nca_qd.evaluation.store import ExactRunStore, RepairStore, ScreenRunStore
@@ -110,21 +116,19 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
     from nca_qd.io import atomic_write_text
     from nca_qd.pipeline import make_generator
     from nca_qd.scoring.backend import make_backend
-    from nca_qd.sim.screen import crowd_mean_for
 
     ecfg = validated(ecfg)
     run_dir = Path(ecfg["run_dir"])
     cfg, archive = load_run(run_dir, domain_override)
     dcfg = OmegaConf.to_container(cfg.domain, resolve=True)
     name = dcfg["name"]
-    # the screen's crowding threshold: the evaluation's own, else the run's domain's
-    ecfg["screen"]["crowd_mean"] = crowd_mean_for(dcfg, ecfg["screen"].get("crowd_mean"))
     algo = OmegaConf.select(cfg, "algo.name")
     out = Path(ecfg["out"]) if ecfg.get("out") else run_dir / "evaluation"
-    by_s_eval = ecfg["select"]["by"] == "s_eval"
     domain = make_domain(dcfg)
     # A direct search's layouts (DSAGE) exist at S only: no S_eval, as in the paper's table 1.
     scales = getattr(make_generator(domain, algo), "scalable", True)
+    plan = Plan(ecfg, dcfg, name, scales=scales)
+    by_s_eval = plan.select.by == "s_eval"
     if by_s_eval and not scales:
         raise NcaQdError(
             f"{run_dir} is a {str(algo).upper()} run: its layouts exist at the training size only, "
@@ -136,19 +140,18 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
             run_dir,
             str(algo).upper(),
         )
-    cells_idx = pick_cells(archive["objective"], ecfg["select"]["pool"] if by_s_eval else ecfg["elites"])
+    cells_idx = pick_cells(archive["objective"], plan.select.pool if by_s_eval else plan.elites)
     tiles = domain.layout_tiles
-    plan = Plan(ecfg, dcfg, name, scales=scales)
     backend = make_backend(ecfg.get("eval"))  # an unreachable scheduler fails here, early
     selection: Selection | None = None
-    repair_store = RepairStore(out) if ecfg["repair"]["reuse"] else None
+    repair_store = RepairStore(out) if plan.repair_reuse else None
 
     def repair(backend: Any, domain_name: str, items: list) -> None:
         repair_all(backend, domain_name, items, store=repair_store)
 
     try:
         if by_s_eval:
-            selection = select_scalable(ecfg, dcfg, domain, archive, cells_idx, plan, backend, repair=repair)
+            selection = select_scalable(plan, domain, archive, cells_idx, backend, repair=repair)
             cells_idx = selection.cells
         log.info(
             "evaluating %s (%s): cell(s) %s; sizes %s",
@@ -160,15 +163,13 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
         ready = (
             {selection.layouts[int(c)].key: selection.layouts[int(c)] for c in cells_idx} if selection else {}
         )
-        layouts = build_layouts(
-            ecfg, dcfg, domain, archive, cells_idx, plan, backend, ready, repair=repair, algo=algo
-        )
+        layouts = build_layouts(plan, domain, archive, cells_idx, backend, ready, repair=repair, algo=algo)
         requests = plan.requests(layouts)
         check_agents(layouts, requests, name, tiles)
         cells = merge_requests(requests)
-        store = ExactRunStore(out) if ecfg["exact"].get("reuse", True) else None
-        screen_store = ScreenRunStore(out) if ecfg["screen"].get("reuse", True) else None
-        if ecfg["screen"]["where"] == "rest":
+        store = ExactRunStore(out) if plan.exact_reuse else None
+        screen_store = ScreenRunStore(out) if plan.screen.reuse else None
+        if plan.screen.where == "rest":
             for c in cells.values():
                 if c.exact_runs > 0:
                     c.screen_runs = 0
@@ -177,12 +178,12 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
             layouts,
             name,
             tiles,
-            int(ecfg["T"]),
-            int(ecfg["seed"]),
+            plan.T,
+            plan.seed,
             backend,
-            exact_settings(ecfg["exact"], int(ecfg["T"])),
-            ecfg["screen"],
-            bool(ecfg["progress"]),
+            plan.exact,
+            plan.screen,
+            plan.progress,
             store,
             screen_store,
         )
@@ -190,8 +191,10 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
         backend.close()
     out.mkdir(parents=True, exist_ok=True)
     t_write = time.time()
+    # the configuration as run, the screen's threshold resolved (the run's domain's if not given)
+    ecfg["screen"]["crowd_mean"] = plan.screen.crowd_mean
     atomic_write_text(out / "evaluate_config.yaml", OmegaConf.to_yaml(OmegaConf.create(ecfg)))
-    summary, md = write_outputs(out, ecfg, name, domain, layouts, requests, results, plan)
+    summary, md = write_outputs(out, plan, domain, layouts, requests, results)
     if selection:
         write_selection(out, selection, tiles)
     remove_stale_outputs(out, t_write - 2.0)
@@ -203,6 +206,8 @@ __all__ = [
     "OUTPUT_PATTERNS",
     "SIMULATORS",
     "STAT_COLUMNS",
+    "ScreenSettings",
+    "SelectSettings",
     "SUPPORTED",
     "EvalLayout",
     "Evaluation",

@@ -4,7 +4,8 @@ The run's result archive (:func:`load_run`) and the cells to evaluate (:func:`pi
 the NCA's layouts generated at each size (:func:`generate_timed`, with C interpolated between
 sizes by :func:`interpolate_iters`), the tiling baseline (:func:`tile_layout`) and the
 human-designed baseline (:func:`human_layout`); each repaired once on the backend
-(:func:`repair_all`, with the options of its size from :func:`repair_opts`).
+(:func:`repair_all`, with the options of its size from
+:meth:`~nca_qd.evaluation.plan.Plan.repair_options`).
 :func:`build_layouts` does all of it for one evaluation.
 
 The repair is passed in (``repair=``, default :func:`repair_all`): the orchestrator
@@ -15,7 +16,6 @@ replacement there (a test counting repairs) sees every repair of an evaluation.
 from __future__ import annotations
 
 import logging
-import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
@@ -24,9 +24,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from nca_qd.errors import NcaQdError
-from nca_qd.evaluation.agents import positive_ints
 from nca_qd.evaluation.plan import Plan
-from nca_qd.evaluation.records import EvalLayout, parse_size, region_shape, size_map, size_str
+from nca_qd.evaluation.records import EvalLayout, parse_size, region_shape, size_str
 from nca_qd.layouts import get_layout, layout_names
 
 if TYPE_CHECKING:
@@ -91,18 +90,6 @@ def pick_cells(objective: np.ndarray, elites: Any) -> np.ndarray:
     if not cells:
         raise NcaQdError("elites is an empty list")
     return np.asarray(cells, dtype=int)
-
-
-def interpolate_iters(
-    full: Sequence[int], s_train: Sequence[int], s_eval: Sequence[int], c_train: int, c_eval: int
-) -> int:
-    """NCA iterations for a size between S and S_eval: linear in the map's side (square root
-    of its area) between C at S and C_eval at S_eval, extrapolated beyond, at least 1."""
-    side = math.sqrt(full[0] * full[1])
-    a, b = math.sqrt(s_train[0] * s_train[1]), math.sqrt(s_eval[0] * s_eval[1])
-    if b == a:
-        return int(c_eval if side > a else c_train)
-    return max(1, int(round(c_train + (side - a) / (b - a) * (c_eval - c_train))))
 
 
 def generate_timed(
@@ -239,36 +226,11 @@ def _recorded_repair(
 Repair = Callable[[Any, str, list[tuple[EvalLayout, dict]]], None]
 
 
-def repair_opts(
-    e: Mapping[str, Any], d: Mapping[str, Any], plan: Plan, shape: tuple[int, int]
-) -> dict[str, Any]:
-    """Repair options at a full-map size: the run's (train or eval block; N_s from this
-    command's ``n_shelves`` where given), N_s of the human layout at other sizes (or
-    ``sizes.n_shelves``), traversable >= the most agents simulated (manufacturing), then this
-    command's ``repair`` overrides."""
-    from nca_qd.scoring.jobs import repair_options
-
-    which = plan.which(shape)
-    opts = repair_options(d, "train" if which == "train" else "eval")
-    if which == "extra":
-        opts.pop("n_shelves", None)
-        n_s = size_map(e["sizes"], "n_shelves").get(size_str(shape))
-    else:
-        n_s = (e.get("n_shelves") or {}).get(which)
-    if n_s is not None:
-        opts["n_shelves"] = int(n_s)
-    opts["n_agents"] = max(int(opts.get("n_agents", 0)), plan.most_agents(shape))
-    opts.update({k: v for k, v in (e.get("repair") or {}).items() if v is not None and k != "reuse"})
-    return opts
-
-
 def build_layouts(
-    e,
-    d,
+    plan: Plan,
     domain,
     archive,
     cells_idx,
-    plan: Plan,
     backend,
     ready: Mapping[str, EvalLayout] | None = None,
     *,
@@ -287,20 +249,9 @@ def build_layouts(
     genotypes = np.asarray(archive["genotypes"][cells_idx])
     layouts: dict[str, EvalLayout] = {}
     sizes = plan.sizes
-    c_train, c_eval = int(d["nca_iters"]["train"]), int(d["nca_iters"]["eval"])
-    iters_cfg = {
-        parse_size(k): positive_ints(v, f"sizes.nca_iters.{k}")[0]
-        for k, v in size_map(e["sizes"], "nca_iters").items()
-    }
     for shape in sizes:
         which = plan.which(shape)
-        n_iters = (
-            c_train
-            if which == "train"
-            else c_eval
-            if which == "eval"
-            else iters_cfg.get(shape) or interpolate_iters(shape, plan.s_train, plan.s_eval, c_train, c_eval)
-        )
+        n_iters = plan.nca_iters(shape)
         keys = [f"{prefix}_c{int(c)}@{size_str(shape)}" for c in cells_idx]
         todo = [i for i, k in enumerate(keys) if k not in (ready or {})]
         made: dict[int, tuple[np.ndarray, float]] = {}
@@ -337,15 +288,15 @@ def build_layouts(
                 )
             layouts[key] = item
     first = [
-        (layouts[k], repair_opts(e, d, plan, plan.s_train))
+        (layouts[k], plan.repair_options(plan.s_train))
         for k in layouts
         if layouts[k].size == size_str(plan.s_train)
     ]
     repair(backend, name, first)  # S first: the tiling baseline starts from it
     rest = [
-        (lay, repair_opts(e, d, plan, parse_size(lay.size))) for lay in layouts.values() if lay.repair is None
+        (lay, plan.repair_options(parse_size(lay.size))) for lay in layouts.values() if lay.repair is None
     ]
-    if e["baselines"]["tiling"] and plan.scales and plan.s_eval != plan.s_train:
+    if plan.tiling_baseline and plan.scales and plan.s_eval != plan.s_train:
         best = layouts[f"{prefix}_c{int(cells_idx[0])}@{size_str(plan.s_train)}"]
         if best.layout is None:
             log.warning("no tiling baseline: the best generator's S layout was not repaired")
@@ -361,9 +312,9 @@ def build_layouts(
                 best.cell,
             )
             layouts[tiled.key] = tiled
-            rest.append((tiled, repair_opts(e, d, plan, plan.s_eval)))
+            rest.append((tiled, plan.repair_options(plan.s_eval)))
     repair(backend, name, rest)
-    if e["baselines"]["human"]:
+    if plan.human_baseline:
         for shape in dict.fromkeys([*sizes, *plan.curve]):
             lay = human_layout(name, shape, tiles)
             if lay is None:

@@ -70,21 +70,18 @@ def remove_stale_outputs(out: Path, before: float) -> list[Path]:
 
 def write_outputs(
     out: Path,
-    e,
-    name: str,
+    plan: Plan,
     domain,
     layouts: dict[str, EvalLayout],
     requests: list[Request],
     results: Results,
-    plan: Plan,
 ):
     """Every CSV and PNG, the summary table (CSV and Markdown); returns (rows, markdown)."""
     from nca_qd.io import atomic_write_text
 
-    tiles = domain.layout_tiles
+    tiles, T, name = domain.layout_tiles, plan.T, plan.name
     _write_layouts(out, name, layouts, tiles, domain.palette)
     _write_runs(out, layouts, results)
-    T = int(e["T"])
     stat_rows: dict[str, list[dict[str, Any]]] = {}
     for r in requests:
         for sim, outs in request_runs(results, r).items():
@@ -98,7 +95,7 @@ def write_outputs(
             )
     for which in ("train", "eval"):
         _write_sweep(out, which, name, stat_rows.get(f"sweep_{which}", []), T)
-        _write_detail(out, which, name, layouts, requests, results, T, int(e["tasks_smooth"]), tiles)
+        _write_detail(out, which, name, layouts, requests, results, T, plan.tasks_smooth, tiles)
     _write_sizes(out, stat_rows.get("sizes", []))
     summary = summary_rows(name, layouts, requests, results, plan)
     write_csv(out / "summary.csv", summary, list(summary[0]) if summary else ["layout"])

@@ -1,17 +1,21 @@
 """The evaluation's plan: its settings checked (:func:`validated`), then every size, agent
 count and run count of the tables and curves (:class:`Plan`), from which the simulation
-requests of the layouts follow (:meth:`Plan.requests`).
+requests of the layouts follow (:meth:`Plan.requests`). The plan is what the stages read:
+typed settings (the selection, the screen, the exact runs), the NCA iterations and the repair
+options of each size, built once here from ``evaluate.yaml`` and the run's domain.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Any
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any, NamedTuple
 
 from nca_qd.errors import NcaQdError
 from nca_qd.evaluation.agents import agent_range, positive_ints, scaled_agents
 from nca_qd.evaluation.records import EvalLayout, Request, full_shape, parse_size, size_map, size_str
 from nca_qd.layouts import get_layout
+from nca_qd.scoring.jobs import ExactSettings
 
 
 def validated(ecfg: Mapping[str, Any]) -> dict[str, Any]:
@@ -78,13 +82,81 @@ def validated(ecfg: Mapping[str, Any]) -> dict[str, Any]:
     return e
 
 
+def interpolate_iters(
+    full: Sequence[int], s_train: Sequence[int], s_eval: Sequence[int], c_train: int, c_eval: int
+) -> int:
+    """NCA iterations for a size between S and S_eval: linear in the map's side (square root
+    of its area) between C at S and C_eval at S_eval, extrapolated beyond, at least 1."""
+    side = math.sqrt(full[0] * full[1])
+    a, b = math.sqrt(s_train[0] * s_train[1]), math.sqrt(s_eval[0] * s_eval[1])
+    if b == a:
+        return int(c_eval if side > a else c_train)
+    return max(1, int(round(c_train + (side - a) / (b - a) * (c_eval - c_train))))
+
+
+def exact_settings(exact_cfg: Mapping[str, Any], T: int) -> ExactSettings:
+    """The evaluation's exact runs as one :class:`~nca_qd.scoring.jobs.ExactSettings`: its
+    ``exact`` block (window, replanning period, wall-clock limit, planner knobs) and ``T``."""
+    from nca_qd.sim.rhcr import planner_options
+
+    return ExactSettings(
+        int(T),
+        exact_cfg.get("time_limit_s"),
+        int(exact_cfg["window"]),
+        int(exact_cfg["replan"]),
+        planner_options(exact_cfg, "exact."),
+    )
+
+
+class SelectSettings(NamedTuple):
+    """``select``: how the generators to evaluate are picked (``by``: s | s_eval)."""
+
+    by: str
+    pool: int
+    runs: int
+    T: int
+
+
+class ScreenSettings(NamedTuple):
+    """``screen``: where the screen runs (all | rest), its check period, crowding threshold
+    (the evaluation's, else the run's domain's) and CPU threads, and whether recorded runs are
+    reused."""
+
+    where: str
+    replan: int
+    crowd_mean: float
+    threads: int | None
+    reuse: bool
+
+
 class Plan:
     """Sizes, agent counts and run counts of every table and curve. With ``scales=False``
     (the layouts of a direct search, DSAGE, exist at S only) every size but S is dropped: no
     S_eval table or curve, no tiling baseline, the more-sizes curve reduced to S."""
 
     def __init__(self, e: Mapping[str, Any], d: Mapping[str, Any], name: str, scales: bool = True):
+        from nca_qd.sim.screen import crowd_mean_for
+
         self.e, self.d, self.name, self.scales = e, d, name, scales
+        self.T, self.seed = int(e["T"]), int(e["seed"])
+        self.tasks_smooth, self.progress = int(e["tasks_smooth"]), bool(e["progress"])
+        sel = e["select"]
+        self.select = SelectSettings(str(sel["by"]), int(sel["pool"]), int(sel["runs"]), int(sel["T"]))
+        self.elites = e["elites"]  # a count, or a list of cells
+        self.human_baseline = bool(e["baselines"]["human"])
+        self.tiling_baseline = bool(e["baselines"]["tiling"])
+        sc = e["screen"]
+        self.screen = ScreenSettings(
+            str(sc["where"]),
+            int(sc["replan"]),
+            crowd_mean_for(d, sc.get("crowd_mean")),
+            sc.get("threads"),
+            bool(sc["reuse"]),
+        )
+        self.exact = exact_settings(e["exact"], self.T)
+        self.exact_reuse = bool(e["exact"]["reuse"])
+        self.repair_reuse = bool(e["repair"]["reuse"])
+        self.repair_overrides = {k: v for k, v in e["repair"].items() if v is not None and k != "reuse"}
         self.s_train = full_shape(name, d["size"]["train"])
         self.s_eval = full_shape(name, d["size"]["eval"])
         shelves = [k for k, v in (e.get("n_shelves") or {}).items() if v is not None]
@@ -144,6 +216,39 @@ class Plan:
         if shape == self.s_eval:
             ns += [self.n_eval, *self.sweep_eval]
         return max(ns) if ns else 1
+
+    def nca_iters(self, shape: tuple[int, int]) -> int:
+        """NCA iterations at a full-map size: C at S, C_eval at S_eval, ``sizes.nca_iters`` or
+        linear in the map's side between them elsewhere."""
+        c_train, c_eval = int(self.d["nca_iters"]["train"]), int(self.d["nca_iters"]["eval"])
+        which = self.which(shape)
+        if which != "extra":
+            return c_train if which == "train" else c_eval
+        given = {
+            parse_size(k): positive_ints(v, f"sizes.nca_iters.{k}")[0]
+            for k, v in size_map(self.e["sizes"], "nca_iters").items()
+        }
+        return given.get(shape) or interpolate_iters(shape, self.s_train, self.s_eval, c_train, c_eval)
+
+    def repair_options(self, shape: tuple[int, int]) -> dict[str, Any]:
+        """Repair options at a full-map size: the run's (train or eval block; N_s from this
+        command's ``n_shelves`` where given), N_s of the human layout at other sizes (or
+        ``sizes.n_shelves``), traversable >= the most agents simulated (manufacturing), then
+        this command's ``repair`` overrides."""
+        from nca_qd.scoring.jobs import repair_options
+
+        which = self.which(shape)
+        opts = repair_options(self.d, "train" if which == "train" else "eval")
+        if which == "extra":
+            opts.pop("n_shelves", None)
+            n_s = size_map(self.e["sizes"], "n_shelves").get(size_str(shape))
+        else:
+            n_s = (self.e.get("n_shelves") or {}).get(which)
+        if n_s is not None:
+            opts["n_shelves"] = int(n_s)
+        opts["n_agents"] = max(int(opts.get("n_agents", 0)), self.most_agents(shape))
+        opts.update(self.repair_overrides)
+        return opts
 
     def requests(self, layouts: Mapping[str, EvalLayout]) -> list[Request]:
         e, ex = self.e, self.e["exact"]

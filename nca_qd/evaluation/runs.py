@@ -20,28 +20,14 @@ from typing import Any
 
 import numpy as np
 
+from nca_qd.evaluation.plan import ScreenSettings
 from nca_qd.evaluation.records import EvalLayout, Request, Results, format_value, size_str
 from nca_qd.evaluation.stats import run_stats
 from nca_qd.evaluation.store import ExactRunStore, ScreenRunStore
 from nca_qd.scoring.jobs import ExactSettings, RunOutcome, exact_job
 from nca_qd.scoring.keys import exact_run_key, screen_run_key
-from nca_qd.sim.screen import CROWD_MEAN
 
 log = logging.getLogger("nca_qd.evaluate")
-
-
-def exact_settings(exact_cfg: Mapping[str, Any], T: int) -> ExactSettings:
-    """The evaluation's exact runs as one :class:`~nca_qd.scoring.jobs.ExactSettings`: its
-    ``exact`` block (window, replanning period, wall-clock limit, planner knobs) and ``T``."""
-    from nca_qd.sim.rhcr import planner_options
-
-    return ExactSettings(
-        int(T),
-        exact_cfg.get("time_limit_s"),
-        int(exact_cfg["window"]),
-        int(exact_cfg["replan"]),
-        planner_options(exact_cfg, "exact."),
-    )
 
 
 def merge_requests(requests: Iterable[Request]) -> dict[tuple[str, int], Request]:
@@ -69,7 +55,7 @@ def simulate_cells(
     seed0: int,
     backend,
     exact: ExactSettings,
-    screen_cfg: Mapping[str, Any],
+    screen: ScreenSettings,
     progress: bool = True,
     store: ExactRunStore | None = None,
     screen_store: ScreenRunStore | None = None,
@@ -114,9 +100,7 @@ def simulate_cells(
             log.info("%d exact RHCR run(s) (T=%d) submitted to %s", len(jobs), T, backend.describe())
             future = pool.submit(map_jobs, backend, exact_job, jobs, record)
         try:
-            _screen_cells(
-                cells, layouts, rows, scenario, T, seed0, screen_cfg, progress, results, screen_store
-            )
+            _screen_cells(cells, layouts, rows, scenario, T, seed0, screen, progress, results, screen_store)
             if future is not None:
                 if not future.done():
                     log.info("screening done; waiting for the exact runs")
@@ -142,7 +126,7 @@ def _screen_cells(
     scenario: str,
     T: int,
     seed0: int,
-    screen_cfg: Mapping[str, Any],
+    screen: ScreenSettings,
     progress: bool,
     results: Results,
     store: ScreenRunStore | None = None,
@@ -151,8 +135,7 @@ def _screen_cells(
     whose runs ``store`` holds is not screened again, and each batch's runs go into it."""
     from tqdm import tqdm
 
-    replan = int(screen_cfg.get("replan", 5))
-    crowd_mean = float(screen_cfg.get("crowd_mean", CROWD_MEAN))
+    replan, crowd_mean = screen.replan, screen.crowd_mean
 
     def key_of(c: Request, seed: int) -> str:
         return screen_run_key(rows[c.layout], scenario, c.n_agents, T, seed, replan, crowd_mean)
@@ -179,7 +162,7 @@ def _screen_cells(
                     known[c.layout] = [o for o in outs if o is not None]
                     reused += len(outs)
         todo = [c for c in group if c.layout not in known]
-        fresh = screen_group(todo, rows, scenario, n, T, seed0, screen_cfg) if todo else []
+        fresh = screen_group(todo, rows, scenario, n, T, seed0, screen) if todo else []
         for c, outs in zip(todo, fresh):
             if store is not None:
                 for o in outs:
@@ -207,7 +190,7 @@ def screen_group(
     n: int,
     T: int,
     seed0: int,
-    screen_cfg: Mapping[str, Any],
+    screen: ScreenSettings,
 ) -> list[list[RunOutcome]]:
     """Screening runs of layouts of one shape at one agent count, in one vmapped batch."""
     from nca_qd.sim.screen import simulate_batch
@@ -220,9 +203,9 @@ def screen_group(
         n,
         T,
         range(seed0, seed0 + runs),
-        replan=int(screen_cfg.get("replan", 5)),
-        threads=screen_cfg.get("threads"),
-        crowd_mean=screen_cfg.get("crowd_mean", CROWD_MEAN),
+        replan=screen.replan,
+        threads=screen.threads,
+        crowd_mean=screen.crowd_mean,
     )
     per_run = (time.perf_counter() - t0) / max(1, runs * len(group))
     out = []

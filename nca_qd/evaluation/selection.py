@@ -16,11 +16,10 @@ from typing import Any
 import numpy as np
 
 from nca_qd.errors import NcaQdError
-from nca_qd.evaluation.layouts import Repair, generate_timed, repair_all, repair_opts
+from nca_qd.evaluation.layouts import Repair, generate_timed, repair_all
 from nca_qd.evaluation.plan import Plan
 from nca_qd.evaluation.records import EvalLayout, size_str
 from nca_qd.evaluation.tables import write_csv
-from nca_qd.sim.screen import CROWD_MEAN
 
 log = logging.getLogger("nca_qd.evaluate")
 
@@ -38,7 +37,7 @@ class Selection:
 
 
 def select_scalable(
-    e, d, domain, archive, pool: np.ndarray, plan: Plan, backend, *, repair: Repair = repair_all
+    plan: Plan, domain, archive, pool: np.ndarray, backend, *, repair: Repair = repair_all
 ) -> Selection:
     """``elites`` cells picked among ``pool`` (the best at S) by a screening run at S_eval.
 
@@ -54,8 +53,8 @@ def select_scalable(
     from nca_qd.sim.scenario import build_scenario
     from nca_qd.sim.screen import simulate_scenarios
 
-    sel, name, tiles = e["select"], domain.name, domain.layout_tiles
-    c_eval, size = int(d["nca_iters"]["eval"]), size_str(plan.s_eval)
+    sel, name, tiles = plan.select, domain.name, domain.layout_tiles
+    c_eval, size = plan.nca_iters(plan.s_eval), size_str(plan.s_eval)
     objective = np.asarray(archive["objective"])
     lays, secs = generate_timed(
         domain, make_generator(domain), archive["genotypes"][pool], plan.s_eval, c_eval
@@ -77,14 +76,14 @@ def select_scalable(
     ]
     log.info(
         "selecting %d of %d generator(s) by a screening run at %s (%d agents, %d run(s), T=%d)",
-        int(e["elites"]),
+        int(plan.elites),
         len(pool),
         size,
         plan.n_eval,
-        sel["runs"],
-        sel["T"],
+        sel.runs,
+        sel.T,
     )
-    repair(backend, name, [(it, repair_opts(e, d, plan, plan.s_eval)) for it in items])
+    repair(backend, name, [(it, plan.repair_options(plan.s_eval)) for it in items])
     rows, scens, scored = [], [], []
     for it in items:
         row = {
@@ -109,15 +108,15 @@ def select_scalable(
         except NcaQdError as err:
             row["note"] = str(err)
     if scens:
-        seeds = range(int(e["seed"]), int(e["seed"]) + int(sel["runs"]))
+        seeds = range(plan.seed, plan.seed + sel.runs)
         res = simulate_scenarios(
             scens,
             plan.n_eval,
-            int(sel["T"]),
+            sel.T,
             seeds,
-            replan=int(e["screen"]["replan"]),
-            threads=e["screen"].get("threads"),
-            crowd_mean=e["screen"].get("crowd_mean", CROWD_MEAN),
+            replan=plan.screen.replan,
+            threads=plan.screen.threads,
+            crowd_mean=plan.screen.crowd_mean,
         )
         for row, runs in zip(scored, res):
             row["screen_runs"] = len(runs)
@@ -129,7 +128,7 @@ def select_scalable(
             f"select.by=s_eval: none of the {len(pool)} generator(s) gave a "
             f"layout to screen at {size} (see the log)"
         )
-    for r in ranked[: int(e["elites"])]:
+    for r in ranked[: int(plan.elites)]:
         r["selected"] = True
     for r in ranked:
         log.info(
@@ -142,7 +141,7 @@ def select_scalable(
             " (selected)" if r["selected"] else "",
         )
     return Selection(
-        np.asarray([r["cell"] for r in ranked[: int(e["elites"])]], dtype=int),
+        np.asarray([r["cell"] for r in ranked[: int(plan.elites)]], dtype=int),
         rows,
         {it.cell: it for it in items},
     )
