@@ -47,6 +47,7 @@ run instead of being carried through it. Streams do not match RHCR's.
 
 from __future__ import annotations
 
+import inspect
 import os
 import time
 from collections.abc import Mapping, Sequence
@@ -476,53 +477,29 @@ def simulate_batch(
     n_agents: int,
     T: int,
     seeds: Sequence[int],
-    replan: int = 5,
-    record_paths: bool = False,
-    priority: str = PRIORITY,
-    congestion: str | None = None,
-    threads: int | None = None,
-    planner: str = PLANNER,
-    crowd_mean: float = CROWD_MEAN,
+    **options: Any,
 ) -> list[list[ScreenResult]]:
-    """Validate layouts (rows) and simulate all of them with all seeds in one vmapped batch.
-
-    All layouts must have one shape. Bad input (unknown scenario or tiles, unreachable goals,
-    too many agents, bad T) raises :class:`NcaQdError` before anything is compiled.
-    """
-    _check(n_agents, T, replan, congestion, priority, planner, crowd_mean)
+    """Validate layouts (rows) and simulate all of them with all seeds in one vmapped batch:
+    :func:`simulate_scenarios` with ``options`` (the one place that names the screen's
+    settings). All layouts must have one shape. Bad input (unknown scenario or tiles,
+    unreachable goals, too many agents, bad T or option) raises :class:`NcaQdError` before
+    anything is compiled."""
+    try:  # the settings checked before the layouts are built (the cheaper error first)
+        bound = inspect.signature(simulate_scenarios).bind([], n_agents, T, seeds, **options)
+    except TypeError as exc:
+        raise NcaQdError(f"screen: {exc}") from None
+    bound.apply_defaults()
+    a = bound.arguments
+    _check(n_agents, T, a["replan"], a["congestion"], a["priority"], a["planner"], a["crowd_mean"])
     scens = [
         build_scenario(list(r), scenario, n_agents=n_agents, source=f"layout {i}")
         for i, r in enumerate(layouts)
     ]
-    return simulate_scenarios(
-        scens, n_agents, T, seeds, replan, record_paths, priority, congestion, threads, planner, crowd_mean
-    )
+    return simulate_scenarios(scens, n_agents, T, seeds, **options)
 
 
 def simulate(
-    rows: Sequence[str],
-    scenario: str,
-    n_agents: int,
-    T: int,
-    seed: int,
-    replan: int = 5,
-    record_paths: bool = False,
-    priority: str = PRIORITY,
-    congestion: str | None = None,
-    planner: str = PLANNER,
-    crowd_mean: float = CROWD_MEAN,
+    rows: Sequence[str], scenario: str, n_agents: int, T: int, seed: int, **options: Any
 ) -> ScreenResult:
-    """One screening run (a batch of one)."""
-    return simulate_batch(
-        [rows],
-        scenario,
-        n_agents,
-        T,
-        [seed],
-        replan,
-        record_paths,
-        priority,
-        congestion,
-        planner=planner,
-        crowd_mean=crowd_mean,
-    )[0][0]
+    """One screening run (a batch of one; ``options`` as :func:`simulate_scenarios`)."""
+    return simulate_batch([rows], scenario, n_agents, T, [seed], **options)[0][0]

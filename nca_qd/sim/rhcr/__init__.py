@@ -72,8 +72,21 @@ class SimResult(RunResult):
 
 
 def simulate(
-    rows: Sequence[str],
-    scenario: str,
+    rows: Sequence[str], scenario: str, n_agents: int, T: int, seed: int, **options: Any
+) -> SimResult:
+    """Simulate ``n_agents`` agents on the layout ``rows`` for ``T`` timesteps: the layout
+    becomes a :class:`Scenario` of the named task model, then :func:`simulate_scenario` runs it
+    with ``options`` (the one place that names the simulator's settings).
+
+    Raises :class:`NcaQdError` for bad input (unknown scenario or tiles, unreachable goals,
+    too many agents, non-positive horizon or window)."""
+    return simulate_scenario(
+        build_scenario(list(rows), scenario, n_agents=n_agents), n_agents, T, seed, **options
+    )
+
+
+def simulate_scenario(
+    scen: Scenario,
     n_agents: int,
     T: int,
     seed: int,
@@ -87,7 +100,8 @@ def simulate(
     reference_starts: bool = False,
     plan_max_expansions: int | None = None,
 ) -> SimResult:
-    """Simulate ``n_agents`` agents on the layout ``rows`` for ``T`` timesteps.
+    """Simulate ``n_agents`` agents on the scenario ``scen`` for ``T`` timesteps (RHCR: windowed
+    PBS with space-time A*, replanning every ``replan`` steps over ``window`` steps).
 
     Raises :class:`NcaQdError` for bad input (unknown scenario or tiles, unreachable goals,
     too many agents, non-positive horizon or window). ``time_limit_s`` bounds the wall-clock
@@ -101,40 +115,6 @@ def simulate(
     a bound on work that, unlike the CPU-time cutoff, stops a jammed call at the same point on
     any machine. A call that hits any of them is repaired and counted in ``pbs_failures``.
     """
-    scen = build_scenario(list(rows), scenario, n_agents=n_agents)
-    return simulate_scenario(
-        scen,
-        n_agents,
-        T,
-        seed,
-        window=window,
-        replan=replan,
-        time_limit_s=time_limit_s,
-        record_paths=record_paths,
-        pbs_max_nodes=pbs_max_nodes,
-        plan_time_limit_s=plan_time_limit_s,
-        prioritize_start=prioritize_start,
-        reference_starts=reference_starts,
-        plan_max_expansions=plan_max_expansions,
-    )
-
-
-def simulate_scenario(
-    scen: Scenario,
-    n_agents: int,
-    T: int,
-    seed: int,
-    window: int = 10,
-    replan: int = 5,
-    time_limit_s: float | None = None,
-    record_paths: bool = False,
-    pbs_max_nodes: int | str | None = "auto",
-    plan_time_limit_s: float | None = 60.0,
-    prioritize_start: bool = True,
-    reference_starts: bool = False,
-    plan_max_expansions: int | None = None,
-) -> SimResult:
-    """:func:`simulate` for an already validated :class:`Scenario`."""
     _check_params(scen, n_agents, T, window, replan, time_limit_s)
     if plan_time_limit_s is not None and not plan_time_limit_s > 0:
         raise NcaQdError(f"plan_time_limit_s must be positive or None, got {plan_time_limit_s}")
