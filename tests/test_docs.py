@@ -52,3 +52,25 @@ def test_the_citation_file_names_the_paper_and_this_version():
     paper = cff["preferred-citation"]
     assert paper["title"].startswith("Arbitrarily Scalable Environment Generators")
     assert [a["family-names"] for a in paper["authors"]] == ["Zhang", "Fontaine", "Bhatt", "Nikolaidis", "Li"]
+
+
+def _map_misses(text: str, packages: list[str]) -> list[str]:
+    """The packages the architecture map (the first fenced block, before any section or
+    table) does not name."""
+    head = re.split(r"\n\| where \| what \||\n## ", text, maxsplit=1)[0]
+    blocks = re.findall(r"```\n(.*?)```", head, flags=re.S)
+    if not blocks:
+        return packages
+    return [p for p in packages if f"{p}/" not in blocks[0]]
+
+
+def test_the_architecture_doc_opens_with_a_map_of_every_package():
+    packages = sorted(d.name for d in (ROOT / "nca_qd").iterdir() if (d / "__init__.py").is_file())
+    assert len(packages) >= 8
+    assert _map_misses((ROOT / "docs/architecture.md").read_text(encoding="utf-8"), packages) == []
+
+
+def test_the_map_check_sees_a_missing_package():
+    text = "# A\n\n```\nqd/ -> sim/\n```\n\n| where | what |\n```\nrepair/\n```\n"
+    assert _map_misses(text, ["qd", "sim", "repair"]) == ["repair"]
+    assert _map_misses("# A\n\n| where | what |\n", ["qd"]) == ["qd"]
