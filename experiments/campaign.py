@@ -1,0 +1,126 @@
+"""A campaign of searches (the arms of a comparison), run one after another in legs.
+
+    python -m experiments.campaign plan=warehouse_even_qd leg_seconds=7000
+    python -m experiments.campaign plan=warehouse_even_qd status=true
+
+The plan (``experiments/conf/campaign/<plan>.yaml`` or a path) names a root folder, overrides
+common to every arm and each arm's own; arm ``a`` runs in ``<root>/<a>``. Each call goes on
+from where the last stopped: a finished arm is skipped, a started one resumed
+(``experiments.run resume=``), the next one started, each with what is left of this call's
+``leg_seconds``. Exit 0 when every arm has finished, 75 when the time ran out first (call again;
+commit the arms' folders between calls to carry them to another machine). Bad input: one line,
+exit 2.
+"""
+
+from __future__ import annotations
+
+import csv
+import time
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig, ListConfig, OmegaConf
+
+from experiments.cli import CONF_DIR, RESUME_HINT, compose_config, main_guard
+from experiments.run import EXIT_LEG_ENDED
+from experiments.run import main as run_main
+from nca_qd.errors import NcaQdError
+
+# A search is not started or resumed with less than this left of the call's time (its first
+# iteration alone would overrun).
+MIN_LEG_S = 60.0
+
+
+def load_plan(name: str) -> tuple[Path, list[str], dict[str, list[str]]]:
+    """``(root, common overrides, {arm: overrides})`` of a plan, checked."""
+    path = Path(name) if name.endswith((".yaml", ".yml")) else CONF_DIR / "campaign" / f"{name}.yaml"
+    if not path.is_file():
+        raise NcaQdError(f"plan={name}: no such plan ({path})")
+    raw = OmegaConf.load(path)
+    if not isinstance(raw, DictConfig) or not raw.get("root") or not isinstance(raw.get("arms"), DictConfig):
+        raise NcaQdError(f"{path}: a plan needs root: <folder> and arms: {{name: [overrides]}}")
+    common = list(raw.get("common") or [])
+    arms: dict[str, list[str]] = {}
+    for arm, overrides in raw.arms.items():
+        if not isinstance(overrides, ListConfig) or not all(
+            isinstance(o, str) and "=" in o for o in overrides
+        ):
+            raise NcaQdError(f"{path}: arm {arm}'s overrides must be a list of key=value")
+        if any(o.startswith(("run_dir=", "resume=", "leg_seconds=")) for o in [*common, *overrides]):
+            raise NcaQdError(f"{path}: run_dir, resume and leg_seconds are the campaign's to set")
+        arms[str(arm)] = [str(o) for o in overrides]
+    return Path(str(raw.root)), [str(c) for c in common], arms
+
+
+def progress(run_dir: Path) -> dict[str, Any]:
+    """An arm's state from its folder: not started, started (evaluations so far), finished."""
+    metrics, config = run_dir / "metrics.csv", run_dir / "config.yaml"
+    if not config.is_file():
+        return {"state": "not started", "evaluations": 0}
+    cfg = OmegaConf.load(config)
+    n_evals = int(cfg.qd.n_evals)
+    rows: list[dict[str, str]] = []
+    if metrics.is_file():
+        with metrics.open() as fh:
+            rows = list(csv.DictReader(fh))
+    last = rows[-1] if rows else {}
+    done = int(float(last.get("evaluations", 0) or 0))
+    return {
+        "state": "finished" if done >= n_evals else "started",
+        "evaluations": done,
+        "n_evals": n_evals,
+        "qd_score": float(last["qd_score"]) if last else None,
+        "coverage": float(last["coverage"]) if last else None,
+    }
+
+
+def _status_line(arm: str, p: dict[str, Any]) -> str:
+    if p["state"] == "not started":
+        return f"{arm}: not started"
+    line = f"{arm}: {p['state']}, {p['evaluations']:,} of {p['n_evals']:,} evaluations"
+    if p.get("qd_score") is not None:
+        line += f", QD-score {p['qd_score']:,.0f}, coverage {p['coverage']:.3f}"
+    return line
+
+
+def main(argv: list[str]) -> int:
+    cfg = compose_config("campaign", argv)
+    if not cfg.plan:
+        raise NcaQdError("give plan=<name in experiments/conf/campaign> or plan=<file.yaml>")
+    budget = cfg.leg_seconds
+    if budget is not None and (
+        isinstance(budget, bool) or not isinstance(budget, (int, float)) or budget <= 0
+    ):
+        raise NcaQdError(f"leg_seconds must be a positive number of seconds or null, got {budget!r}")
+    root, common, arms = load_plan(str(cfg.plan))
+    if cfg.status:
+        for arm in arms:
+            print(_status_line(arm, progress(root / arm)))
+        return 0
+    end = None if budget is None else time.monotonic() + float(budget)
+    for arm, overrides in arms.items():
+        run_dir = root / arm
+        state = progress(run_dir)
+        if state["state"] == "finished":
+            continue
+        left = None if end is None else end - time.monotonic()
+        if left is not None and left < MIN_LEG_S:
+            print(f"{arm}: left for the next call (this call's leg_seconds are used)")
+            return EXIT_LEG_ENDED
+        leg = [] if left is None else [f"leg_seconds={max(left, 1.0):.1f}"]
+        print(f"{arm}: {'resuming' if state['state'] == 'started' else 'starting'} in {run_dir}", flush=True)
+        if state["state"] == "started":
+            code = run_main([f"resume={run_dir}", *leg])
+        else:
+            code = run_main([*common, *overrides, f"run_dir={run_dir}", *leg])
+        if code == EXIT_LEG_ENDED:
+            print(f"{arm}: leg ended; go on with: python -m experiments.campaign plan={cfg.plan}")
+            return EXIT_LEG_ENDED
+        if code != 0:
+            return code
+    print(f"every arm of {cfg.plan} has finished")
+    return 0
+
+
+if __name__ == "__main__":
+    main_guard(main, RESUME_HINT)()
