@@ -49,7 +49,7 @@ def lowest(values: np.ndarray, phases: int) -> np.ndarray:
 
 def every(flags: np.ndarray, phases: int) -> np.ndarray:
     """True where every phase of the generator is."""
-    return by_generator(flags, phases).all(axis=1)
+    return np.asarray(by_generator(flags, phases).all(axis=1))
 
 
 def combine(
