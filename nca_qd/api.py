@@ -46,7 +46,7 @@ class Generator:
 
     def n_iters(self, rows: int, cols: int) -> int:
         """NCA iterations at a whole-map size (module docstring)."""
-        from nca_qd.evaluation.layouts import interpolate_iters
+        from nca_qd.evaluation.plan import interpolate_iters
 
         d = self.cfg.domain
         full = (int(rows), int(cols))
