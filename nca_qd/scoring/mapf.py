@@ -437,10 +437,8 @@ class MapfScorer:
         b = len(w.layouts)
         w.measures = np.asarray(self.domain.measures(w.fixed), dtype=np.float32)
         p = self.cfg.phases  # each phase is compared with the elite of its generator's cell
-        cells_of = phases.first_phase(w.measures, p)
-        elite = (
-            np.asarray(context.result_elite(cells_of)) if context is not None else np.full(b // p, -np.inf)
-        )
+        phase_c = phases.first_phase(w.measures, p)  # the generators' measures
+        elite = np.asarray(context.result_elite(phase_c)) if context is not None else np.full(b // p, -np.inf)
         w.elite = phases.spread(elite, p)
         w.known = np.full(b, np.nan)
         if self.ancillary:
