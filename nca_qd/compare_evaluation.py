@@ -240,13 +240,8 @@ SCALING_COLUMNS = [
 
 
 def write_scaling_csv(path: Path, arms: Sequence[Arm]) -> None:
-    with path.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(SCALING_COLUMNS)
-        for r in scaling_rows(arms):
-            w.writerow(
-                [
-                    " ".join(map(str, r[c])) if c == "seeds" else ("" if r[c] != r[c] else r[c])
-                    for c in SCALING_COLUMNS
-                ]
-            )
+    """Tables 2/5 as CSV (the evaluation's own writer: NaN as empty cells, atomic)."""
+    from nca_qd.evaluation.tables import write_csv
+
+    rows = [{**r, "seeds": " ".join(map(str, r["seeds"]))} for r in scaling_rows(arms)]
+    write_csv(path, rows, SCALING_COLUMNS)
