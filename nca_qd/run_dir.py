@@ -39,6 +39,8 @@ LEGACY_SETTINGS: dict[str, Any] = {
     # the exact planner's start rules before run.yaml named them (2026-11-29): RHCR's own
     "eval.prioritize_start": True,
     "eval.starts": "random",
+    # the exact planner before PIBT joined the core (2026-11-29): RHCR
+    "eval.planner": "rhcr",
 }
 
 

@@ -273,6 +273,16 @@ def test_layouts_are_saved_and_tiling_is_repaired(evaluated):
     ):
         lay = load_map(out / lays[key]["file"], wh.TILES).to_array(wh.TILES)
         assert check(lay, make_rules("warehouse_even", lay.shape, n_shelves=n_s)) is None, key
+        # what the NCA placed and the repair kept, recounted from the two map files
+        raw = load_map(out / lays[key]["file"].replace(".json", "_unrepaired.json"), wh.TILES)
+        nca = raw.to_array(wh.TILES)
+        for tile, name in (("@", "shelves"), ("e", "endpoints")):
+            i = wh.TILES.index(tile)
+            assert int(lays[key][f"nca_{name}"]) == int((nca == i).sum()), key
+            assert int(lays[key][f"repaired_{name}"]) == int((lay == i).sum()), key
+            assert int(lays[key][f"kept_{name}"]) == int(((nca == i) & (lay == i)).sum()), key
+        assert int(lays[key]["repaired_shelves"]) == n_s
+    assert all(v == "" for k, v in lays["human@9x14"].items() if k.startswith(("nca_", "kept_"))), lays
 
 
 def test_a_dsage_run_is_evaluated_at_s_only(tmp_path, maps):

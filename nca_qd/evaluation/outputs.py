@@ -99,7 +99,7 @@ def write_outputs(
     _write_sizes(out, stat_rows.get("sizes", []))
     summary = summary_rows(name, layouts, requests, results, plan)
     write_csv(out / "summary.csv", summary, list(summary[0]) if summary else ["layout"])
-    md = summary_markdown(name, summary, T)
+    md = summary_markdown(name, summary, T, plan.exact.planner.get("planner", "rhcr"))
     atomic_write_text(out / "summary.md", md)
     return summary, md
 

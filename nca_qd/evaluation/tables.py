@@ -15,6 +15,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from nca_qd.errors import NcaQdError
 from nca_qd.evaluation.plan import Plan
 from nca_qd.evaluation.records import EvalLayout, finite, format_value
@@ -69,6 +71,7 @@ def layout_cols(lay: EvalLayout) -> dict[str, Any]:
 def layout_record(lay: EvalLayout, scenario: str, tiles: str) -> dict[str, Any]:
     """One row of layouts.csv: generation and repair figures of one layout."""
     from nca_qd.io import array_to_rows
+    from nca_qd.layouts import get_layout
     from nca_qd.sim.scenario import build_scenario
 
     rep = lay.repair
@@ -88,8 +91,32 @@ def layout_record(lay: EvalLayout, scenario: str, tiles: str) -> dict[str, Any]:
         "hamming": rep.hamming if rep is not None else None,
         "repair_error": rep.error if rep is not None else None,
         "n_traversable": trav,
+        **placed_counts(lay, get_layout(scenario).gen_tiles),
         "file": f"layouts/{lay.key.replace('@', '_')}.json",
     }
+
+
+# Readable names of the tiles a generator places, for the columns of layouts.csv.
+TILE_NAMES = {"@": "shelves", "e": "endpoints"}
+
+
+def placed_counts(lay: EvalLayout, tiles: str) -> dict[str, int | None]:
+    """Per non-empty tile the generator places (``tiles``: its alphabet, a prefix of the
+    layout's; a fixed frame's tiles are not counted): how many the NCA placed (``nca_*``, the unrepaired layout), how many
+    the layout holds (``repaired_*``) and how many of the NCA's the repair kept (``kept_*``):
+    how much of a layout is the generator's and how much the repair's (issue 55). Empty for
+    layouts without an unrepaired version (the human ones)."""
+    out: dict[str, int | None] = {}
+    nca = None if lay.unrepaired is None else np.asarray(lay.unrepaired)
+    fin = None if lay.layout is None else np.asarray(lay.layout)
+    for i, ch in enumerate(tiles):
+        if ch == ".":
+            continue
+        name = TILE_NAMES.get(ch, f"tile_{ch}")
+        out[f"nca_{name}"] = None if nca is None else int((nca == i).sum())
+        out[f"repaired_{name}"] = None if nca is None or fin is None else int((fin == i).sum())
+        out[f"kept_{name}"] = None if nca is None or fin is None else int(((nca == i) & (fin == i)).sum())
+    return out
 
 
 def peaks(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
@@ -150,8 +177,10 @@ def summary_rows(name: str, layouts, requests, results, plan: Plan) -> list[dict
     return rows
 
 
-def summary_markdown(name: str, rows: Sequence[Mapping[str, Any]], T: int) -> str:
-    """The summary as a Markdown table (throughput of successful runs, as in the paper)."""
+def summary_markdown(name: str, rows: Sequence[Mapping[str, Any]], T: int, planner: str = "rhcr") -> str:
+    """The summary as a Markdown table (throughput of successful runs, as in the paper). The
+    exact runs are labelled ``rhcr`` whatever their ``planner``; the header names the planner
+    where it is not RHCR."""
 
     def pm(m, se):
         if not finite(m):
@@ -196,5 +225,8 @@ def summary_markdown(name: str, rows: Sequence[Mapping[str, Any]], T: int) -> st
     ]
     return (
         f"## {name}: main comparison (T={T}; mean ± standard error; screen = JAX "
-        f"screening approximation, rhcr = exact)\n\n" + markdown_table(shown, cols)
+        f"screening approximation, rhcr = exact"
+        + ("" if planner == "rhcr" else f", here with the {planner.upper()} planner instead of RHCR")
+        + ")\n\n"
+        + markdown_table(shown, cols)
     )

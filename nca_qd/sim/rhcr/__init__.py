@@ -1,4 +1,7 @@
-"""Exact lifelong-MAPF simulation with RHCR (Li et al., AAAI 2021), compiled core.
+"""Exact lifelong-MAPF simulation with RHCR (Li et al., AAAI 2021), compiled core; lifelong
+PIBT (Okumura et al., AIJ 2022) beside it as a second planner (``planner="pibt"``: one step per
+call, no window, the same task model and congestion rule; ``src/pibt.hpp``), so that a layout can
+be judged under two planners.
 
 Every ``replan`` (h) timesteps RHCR plans collision-free paths for all agents over the next
 ``window`` (w) timesteps with windowed Priority-Based Search (Ma et al. 2019) over a
@@ -37,6 +40,7 @@ except ImportError as exc:  # pragma: no cover - only when the package was not b
     ) from exc
 
 __all__ = [
+    "PLANNERS",
     "PLANNER_KEYS",
     "STARTS",
     "SimResult",
@@ -99,6 +103,7 @@ def simulate_scenario(
     prioritize_start: bool = True,
     reference_starts: bool = False,
     plan_max_expansions: int | None = None,
+    planner: str = "rhcr",
 ) -> SimResult:
     """Simulate ``n_agents`` agents on the scenario ``scen`` for ``T`` timesteps (RHCR: windowed
     PBS with space-time A*, replanning every ``replan`` steps over ``window`` steps).
@@ -114,8 +119,12 @@ def simulate_scenario(
     planner could). ``plan_max_expansions`` bounds a call's A* expansions (``None``: no bound),
     a bound on work that, unlike the CPU-time cutoff, stops a jammed call at the same point on
     any machine. A call that hits any of them is repaired and counted in ``pbs_failures``.
+    ``planner="pibt"`` plans one step at a time with PIBT instead (``window`` and the PBS knobs
+    unused; ``replan`` is the congestion rule's period, as in RHCR).
     """
     _check_params(scen, n_agents, T, window, replan, time_limit_s)
+    if planner not in PLANNERS:
+        raise NcaQdError(f"planner must be one of {', '.join(PLANNERS)}, got {planner!r}")
     if plan_time_limit_s is not None and not plan_time_limit_s > 0:
         raise NcaQdError(f"plan_time_limit_s must be positive or None, got {plan_time_limit_s}")
     if pbs_max_nodes == "auto":
@@ -152,6 +161,7 @@ def simulate_scenario(
         bool(prioritize_start),
         bool(reference_starts),
         int(plan_max_expansions or 0),
+        planner,
     )
     width = scen.shape[1]
     offsets, cells, dwell = raw["goal_offsets"], raw["goal_cells"], raw["goal_dwell"]
@@ -219,7 +229,15 @@ def simulate_many(
 
 
 # The planner's knobs a config may set (the rest of a run's settings are T, seeds, w, h).
-PLANNER_KEYS = ("plan_time_limit_s", "pbs_max_nodes", "plan_max_expansions", "prioritize_start", "starts")
+PLANNER_KEYS = (
+    "planner",
+    "plan_time_limit_s",
+    "pbs_max_nodes",
+    "plan_max_expansions",
+    "prioritize_start",
+    "starts",
+)
+PLANNERS = ("rhcr", "pibt")  # RHCR (windowed PBS, as the paper) / lifelong PIBT (one step per call)
 STARTS = ("random", "reference")  # start cells drawn per seed / the reference's one configuration
 
 
@@ -232,6 +250,11 @@ def planner_options(cfg: Mapping[str, Any] | None, where: str = "") -> dict[str,
     ``where`` prefixes the key in error messages (e.g. ``eval.``)."""
     cfg = cfg or {}
     out: dict[str, Any] = {}
+    if "planner" in cfg:
+        if cfg["planner"] not in PLANNERS:
+            raise NcaQdError(f"{where}planner must be one of {', '.join(PLANNERS)}, got {cfg['planner']!r}")
+        if cfg["planner"] != "rhcr":  # (absent for the default: keys of earlier runs stay valid)
+            out["planner"] = cfg["planner"]
     if "plan_time_limit_s" in cfg:
         limit = cfg["plan_time_limit_s"]
         if limit is not None and (

@@ -2,13 +2,16 @@
 // release the GIL.
 #include <nanobind/nanobind.h>
 #include <nanobind/ndarray.h>
+#include <nanobind/stl/string.h>
 #include <nanobind/stl/vector.h>
 
 #include <stdexcept>
+#include <string>
 #include <vector>
 
 #include "grid.hpp"
 #include "pbs.hpp"
+#include "pibt.hpp"
 #include "rhcr.hpp"
 
 namespace nb = nanobind;
@@ -28,7 +31,9 @@ nb::dict run(nb::ndarray<const uint8_t, nb::ndim<2>, nb::c_contig, nb::device::c
              std::vector<std::vector<int>> class_cells, std::vector<std::vector<double>> class_weights,
              std::vector<int> class_dwell, std::vector<int> cycle, int n_agents, int horizon, uint64_t seed,
              int window, int replan, double time_limit_s, int64_t pbs_max_nodes, bool record_paths,
-             double plan_time_limit_s, bool prioritize_start, bool reference_starts, int64_t plan_max_expansions) {
+             double plan_time_limit_s, bool prioritize_start, bool reference_starts, int64_t plan_max_expansions,
+             const std::string& planner) {
+  if (planner != "rhcr" && planner != "pibt") throw std::invalid_argument("planner must be rhcr or pibt");
   rhcr::SimConfig cfg;
   cfg.rows = static_cast<int>(traversable.shape(0));
   cfg.cols = static_cast<int>(traversable.shape(1));
@@ -54,7 +59,7 @@ nb::dict run(nb::ndarray<const uint8_t, nb::ndim<2>, nb::c_contig, nb::device::c
   rhcr::SimResult r;
   {
     nb::gil_scoped_release release;  // simulations in other threads run in parallel
-    r = rhcr::simulate(cfg);
+    r = planner == "pibt" ? rhcr::simulate_pibt(cfg) : rhcr::simulate(cfg);
   }
   const size_t steps = static_cast<size_t>(r.stop_time) + 1;
   nb::dict d;
@@ -146,13 +151,14 @@ nb::dict plan(nb::ndarray<const uint8_t, nb::ndim<2>, nb::c_contig, nb::device::
 }  // namespace
 
 NB_MODULE(_core, m) {
-  m.doc() = "Compiled RHCR lifelong-MAPF simulator (windowed PBS over space-time A*).";
+  m.doc() = "Compiled lifelong-MAPF simulators: RHCR (windowed PBS over space-time A*) and PIBT.";
   m.attr("VERSION") = 4;  // bump when a change alters simulated outcomes
   m.def("run", &run, "traversable"_a, "class_cells"_a, "class_weights"_a, "class_dwell"_a, "cycle"_a,
         "n_agents"_a, "horizon"_a, "seed"_a, "window"_a = 10, "replan"_a = 5, "time_limit_s"_a = 0.0,
         "pbs_max_nodes"_a = 0, "record_paths"_a = false, "plan_time_limit_s"_a = 60.0,
         "prioritize_start"_a = true, "reference_starts"_a = false, "plan_max_expansions"_a = 0,
-        "Run one simulation; returns a dict of figures and NumPy arrays. Releases the GIL.");
+        "planner"_a = "rhcr",
+        "Run one simulation (planner rhcr: windowed PBS; pibt: lifelong PIBT); returns a dict of figures and NumPy arrays. Releases the GIL.");
   m.def("plan", &plan, "traversable"_a, "starts"_a, "goals"_a, "window"_a = 10, "executed_steps"_a = 5,
         "max_nodes"_a = 0, "time_limit_s"_a = 60.0, "prioritize_start"_a = true, "seed"_a = 0,
         "dwells"_a = std::vector<std::vector<int>>(),

@@ -12,38 +12,13 @@
 #include "grid.hpp"
 #include "pbs.hpp"
 #include "rng.hpp"
+#include "tasks.hpp"
 
 namespace rhcr {
 namespace {
 
 // Bound on the goal queue (only reachable when goals of consecutive kinds share cells).
 constexpr size_t kMaxQueue = 32;
-
-// Draws each agent's next goal: class ids cycle, the cell is drawn by the class weights.
-class TaskAssigner {
- public:
-  TaskAssigner(const SimConfig& cfg, Rng& rng) : cfg_(cfg), rng_(rng) {
-    for (const auto& cls : cfg.classes) {
-      std::vector<double> cum(cls.weights.size());
-      std::partial_sum(cls.weights.begin(), cls.weights.end(), cum.begin());
-      cumulative_.push_back(std::move(cum));
-    }
-  }
-  Goal next(int& phase) {
-    const int cls_id = cfg_.cycle[phase];
-    phase = (phase + 1) % static_cast<int>(cfg_.cycle.size());
-    const auto& cum = cumulative_[cls_id];
-    const double u = rng_.uniform() * cum.back();
-    size_t i = std::upper_bound(cum.begin(), cum.end(), u) - cum.begin();
-    if (i >= cum.size()) i = cum.size() - 1;
-    return {cfg_.classes[cls_id].cells[i], cfg_.classes[cls_id].dwell};
-  }
-
- private:
-  const SimConfig& cfg_;
-  Rng& rng_;
-  std::vector<std::vector<double>> cumulative_;
-};
 
 struct AgentState {
   int cell = 0;
@@ -53,31 +28,6 @@ struct AgentState {
   int stayed = 0;           // timesteps stayed on queue.front() after arriving
   bool tasking = false;     // the last executed step was a dwell step at a station
 };
-
-void validate(const SimConfig& cfg) {
-  const int cells = cfg.rows * cfg.cols;
-  if (cfg.rows <= 0 || cfg.cols <= 0 || static_cast<int>(cfg.traversable.size()) != cells)
-    throw std::invalid_argument("traversable mask does not match rows x cols");
-  if (cfg.horizon <= 0) throw std::invalid_argument("horizon T must be positive");
-  if (cfg.n_agents <= 0) throw std::invalid_argument("need at least one agent");
-  if (cfg.window < 1 || cfg.replan < 1 || cfg.replan > cfg.window)
-    throw std::invalid_argument("need 1 <= replan (h) <= window (w)");
-  if (cfg.cycle.empty()) throw std::invalid_argument("empty goal cycle");
-  for (int id : cfg.cycle)
-    if (id < 0 || id >= static_cast<int>(cfg.classes.size())) throw std::invalid_argument("bad class id in cycle");
-  for (const auto& cls : cfg.classes) {
-    if (cls.cells.empty() || cls.cells.size() != cls.weights.size())
-      throw std::invalid_argument("goal class needs cells with one weight each");
-    for (size_t i = 0; i < cls.cells.size(); ++i) {
-      if (cls.cells[i] < 0 || cls.cells[i] >= cells || !cfg.traversable[cls.cells[i]])
-        throw std::invalid_argument("goal cell off the traversable tiles");
-      if (!(cls.weights[i] > 0)) throw std::invalid_argument("goal weights must be positive");
-    }
-    if (cls.dwell < 0) throw std::invalid_argument("dwell must be >= 0");
-  }
-  const int n_free = static_cast<int>(std::count(cfg.traversable.begin(), cfg.traversable.end(), 1));
-  if (cfg.n_agents > n_free) throw std::invalid_argument("more agents than traversable tiles");
-}
 
 }  // namespace
 
@@ -116,18 +66,10 @@ SimResult simulate(const SimConfig& cfg) {
   res.tile_visits.assign(grid.cells(), 0);
   std::vector<std::vector<Goal>> goal_log(N);
 
-  // Initial cells: distinct, uniform over traversable tiles (partial Fisher-Yates, per seed);
-  // or, with reference_starts, the reference's: its traversable cells in row-major order
-  // shuffled by an unseeded std::default_random_engine, the same for every seed.
-  std::vector<int> free_cells;
-  for (int c = 0; c < grid.cells(); ++c)
-    if (grid.traversable(c)) free_cells.push_back(c);
+  // Initial cells (tasks.hpp): distinct, per seed.
+  const std::vector<int> starts = start_cells(cfg, grid, rng);
   std::vector<AgentState> agents(N);
-  if (cfg.reference_starts) std::shuffle(free_cells.begin(), free_cells.end(), std::default_random_engine());
-  for (int a = 0; a < N; ++a) {
-    if (!cfg.reference_starts) std::swap(free_cells[a], free_cells[a + rng.below(free_cells.size() - a)]);
-    agents[a].cell = free_cells[a];
-  }
+  for (int a = 0; a < N; ++a) agents[a].cell = starts[a];
   // Every agent's first goal is of the cycle's first kind (RHCR: an endpoint in the warehouse,
   // a kind-0 station in manufacturing).
 

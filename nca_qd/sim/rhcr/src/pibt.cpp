@@ -1,0 +1,209 @@
+#include "pibt.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <numeric>
+#include <vector>
+
+#include "cpu_clock.hpp"
+#include "grid.hpp"
+#include "rng.hpp"
+#include "tasks.hpp"
+
+namespace rhcr {
+namespace {
+
+struct Agent {
+  int cell = 0;
+  int phase = 0;        // position in the class cycle of the next goal to draw
+  Goal goal{0, 0};      // the current goal
+  const uint16_t* dist = nullptr;  // distances to the goal
+  bool arrived = false;  // standing on the goal since arriving (dwell in progress)
+  int stayed = 0;        // timesteps stayed on the goal after arriving
+  bool tasking = false;  // the last executed step was a dwell step at a station
+  int elapsed = 0;       // timesteps since the goal was assigned (the priority)
+  double tie = 0;        // the priority's tie-breaker in [0, 1)
+};
+
+// One PIBT step: next_[a] for every agent, free of vertex and swap conflicts.
+class PibtStep {
+ public:
+  PibtStep(const Grid& grid, std::vector<Agent>& agents, Rng& rng)
+      : grid_(grid), agents_(agents), rng_(rng), now_(grid.cells(), -1), taken_(grid.cells(), -1),
+        next_(agents.size(), -1) {}
+
+  // Plans the step; returns next cells (indexed by agent).
+  const std::vector<int>& plan(const std::vector<int>& order) {
+    const int n = static_cast<int>(agents_.size());
+    for (int a = 0; a < n; ++a) now_[agents_[a].cell] = a, next_[a] = -1;
+    for (int a = 0; a < n; ++a) {  // a dwelling agent stays where it is, whoever asks
+      const Agent& ag = agents_[a];
+      if (ag.arrived && ag.stayed < ag.goal.dwell) reserve(a, ag.cell);
+    }
+    for (int a : order)
+      if (next_[a] < 0) push(a, -1);
+    for (int a = 0; a < n; ++a) now_[agents_[a].cell] = -1, taken_[next_[a]] = -1;
+    return next_;
+  }
+
+ private:
+  void reserve(int a, int cell) {
+    taken_[cell] = a;
+    next_[a] = cell;
+  }
+
+  // PIBT(i, j): agent i chooses a cell, j (or -1) is the agent that asked it to move.
+  bool push(int i, int asker) {
+    const Agent& ag = agents_[i];
+    int cand[5];
+    int k = 0;
+    for (int d = 0; d < 4; ++d) {
+      const int v = grid_.neighbor(ag.cell, d);
+      if (v >= 0) cand[k++] = v;
+    }
+    cand[k++] = ag.cell;
+    // Random order first, then a stable sort on (distance to goal, occupied now): ties among
+    // equally near free cells fall randomly, as in the authors' implementation.
+    for (int x = k - 1; x > 0; --x) std::swap(cand[x], cand[rng_.below(x + 1)]);
+    const uint16_t* dist = ag.dist;
+    std::stable_sort(cand, cand + k, [&](int u, int v) {
+      if (dist[u] != dist[v]) return dist[u] < dist[v];
+      return (now_[u] < 0) > (now_[v] < 0);
+    });
+    for (int x = 0; x < k; ++x) {
+      const int v = cand[x];
+      if (taken_[v] >= 0) continue;                               // vertex conflict
+      if (asker >= 0 && v == agents_[asker].cell) continue;       // swap conflict
+      reserve(i, v);
+      const int other = now_[v];
+      if (other >= 0 && other != i && next_[other] < 0 && !push(other, i)) continue;
+      return true;
+    }
+    reserve(i, ag.cell);  // no cell: stay (the asker then tries its next cell)
+    return false;
+  }
+
+  const Grid& grid_;
+  std::vector<Agent>& agents_;
+  Rng& rng_;
+  std::vector<int> now_, taken_, next_;
+};
+
+}  // namespace
+
+SimResult simulate_pibt(const SimConfig& cfg) {
+  validate(cfg);
+  const double cpu0 = thread_cpu_seconds();
+  const auto wall0 = std::chrono::steady_clock::now();
+  const bool limited = cfg.time_limit_s > 0;
+  const auto deadline = limited ? wall0 + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                              std::chrono::duration<double>(cfg.time_limit_s))
+                                : std::chrono::steady_clock::time_point::max();
+  const int N = cfg.n_agents, T = cfg.horizon, h = cfg.replan;
+  Grid grid(cfg.rows, cfg.cols, cfg.traversable);
+  DistanceCache distances(grid);
+  Rng rng(cfg.seed);
+  TaskAssigner assigner(cfg, rng);
+  const std::vector<int> starts = start_cells(cfg, grid, rng);
+  Rng plan_rng(cfg.seed ^ 0x5DEECE66DULL);  // the planner's own stream (tie-breakers)
+
+  SimResult res;
+  res.tasks_per_step.assign(T, 0);
+  res.tile_visits.assign(grid.cells(), 0);
+  std::vector<std::vector<Goal>> goal_log(N);
+  std::vector<Agent> agents(N);
+  auto assign = [&](int a) {
+    Agent& ag = agents[a];
+    ag.goal = assigner.next(ag.phase);
+    ag.dist = distances.get(ag.goal.cell);
+    ag.elapsed = 0;
+    goal_log[a].push_back(ag.goal);
+  };
+  for (int a = 0; a < N; ++a) {
+    agents[a].cell = starts[a];
+    agents[a].tie = plan_rng.uniform();
+    assign(a);  // the cycle's first kind, as in RHCR
+  }
+  if (cfg.record_paths) {
+    res.paths.reserve(static_cast<size_t>(T + 1) * N);
+    for (const auto& ag : agents) res.paths.push_back(ag.cell);
+  }
+
+  PibtStep step(grid, agents, plan_rng);
+  std::vector<int> order(N);
+  std::iota(order.begin(), order.end(), 0);
+  std::vector<int> round_start(N);
+  std::vector<char> stuck(N);
+  int t = 0;
+  while (t < T) {
+    if (limited && std::chrono::steady_clock::now() > deadline) {
+      res.timed_out = true;
+      break;
+    }
+    // A round of h steps, as RHCR's: its congestion rule is checked at the round's end.
+    const int steps = std::min(h, T - t);
+    for (int a = 0; a < N; ++a) round_start[a] = agents[a].cell, stuck[a] = !agents[a].tasking;
+    for (int s = 1; s <= steps; ++s) {
+      std::sort(order.begin(), order.end(), [&](int x, int y) {
+        if (agents[x].elapsed != agents[y].elapsed) return agents[x].elapsed > agents[y].elapsed;
+        if (agents[x].tie != agents[y].tie) return agents[x].tie > agents[y].tie;
+        return x < y;
+      });
+      const double call_cpu0 = thread_cpu_seconds();
+      const std::vector<int>& next = step.plan(order);
+      res.call_cpu_seconds.push_back(thread_cpu_seconds() - call_cpu0);
+      res.call_nodes.push_back(0);
+      res.call_expansions.push_back(0);
+      res.call_failed.push_back(0);
+      ++res.replans;
+      int finished = 0;
+      for (int a = 0; a < N; ++a) {
+        Agent& ag = agents[a];
+        ag.cell = next[a];
+        ag.tasking = false;
+        ++ag.elapsed;
+        ++res.tile_visits[ag.cell];
+        if (cfg.record_paths) res.paths.push_back(ag.cell);
+        // Goal bookkeeping: RHCR's rules (and the Python checker's).
+        if (ag.goal.cell != ag.cell) {
+          ag.arrived = false;
+        } else {
+          if (ag.arrived) ++ag.stayed, ag.tasking = ag.goal.dwell > 0;
+          else ag.arrived = true, ag.stayed = 0;
+        }
+        if (s < h && (ag.cell != round_start[a] || ag.tasking)) stuck[a] = 0;
+        while (ag.arrived && ag.stayed >= ag.goal.dwell) {
+          ++finished;
+          ag.arrived = false;
+          assign(a);
+          if (ag.goal.cell == ag.cell) ag.arrived = true, ag.stayed = 0;
+        }
+      }
+      res.tasks_per_step[t + s - 1] = finished;
+      res.finished_tasks += finished;
+    }
+    t += steps;
+    const int n_stuck = static_cast<int>(std::count(stuck.begin(), stuck.end(), 1));
+    if (2 * n_stuck > N) {
+      res.congested = true;
+      break;
+    }
+  }
+
+  res.stop_time = t;
+  res.success = !res.congested && !res.timed_out && t == T;
+  res.throughput = static_cast<double>(res.finished_tasks) / T;
+  res.goal_offsets.push_back(0);
+  for (const auto& log : goal_log) {
+    for (const Goal& g : log) {
+      res.goal_cells.push_back(g.cell);
+      res.goal_dwell.push_back(g.dwell);
+    }
+    res.goal_offsets.push_back(static_cast<int32_t>(res.goal_cells.size()));
+  }
+  res.cpu_seconds = thread_cpu_seconds() - cpu0;
+  res.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
+  return res;
+}
+
+}  // namespace rhcr
