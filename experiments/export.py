@@ -2,11 +2,12 @@
 
     python -m experiments.export layout=map.json format=movingai out=exports/
     python -m experiments.export run=results/warehouse_even_a5 rows=101 cols=102 format=lorr out=exports/
+    python -m experiments.export human=true domain=warehouse_even rows=140 cols=500 format=json out=maps/
 
 Writes the format's files into ``out`` (:mod:`nca_qd.export` describes them) and prints one JSON
-line naming them. From a run, the generator of ``cell`` grows a layout at ``rows`` x ``cols``
-(the whole map) and, with ``repair=true``, the domain's repair makes it valid. Bad input: one
-line on stderr and exit 2.
+line naming them (and, for a warehouse, its shelf count). From a run, the generator of ``cell``
+grows a layout at ``rows`` x ``cols`` (the whole map) and, with ``repair=true``, the domain's
+repair makes it valid. Bad input: one line on stderr and exit 2.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import json
 import os
 from pathlib import Path
 
-from experiments.cli import compose_config, main_guard
+from experiments.cli import compose_config, main_guard, take_domain
 from nca_qd.errors import NcaQdError
 from nca_qd.io import atomic_write_text, load_map
 
@@ -57,6 +58,27 @@ def _from_run(cfg) -> tuple[list[str], str, str]:
     return g.rows(layout), g.domain.name, name
 
 
+def _human(cfg) -> tuple[list[str], str, str]:
+    from nca_qd.layouts import get_layout
+    from nca_qd.layouts.warehouse import human_layout
+
+    domain = str(cfg.domain or "warehouse_even")
+    if not domain.startswith("warehouse"):
+        raise NcaQdError(f"human=true draws warehouses (domain=warehouse_even or _uneven), not {domain}")
+    if cfg.rows is None or cfg.cols is None:
+        raise NcaQdError("human=true needs rows=<R> cols=<C>")
+    rows, cols = _size(cfg.rows, "rows"), _size(cfg.cols, "cols")
+    kind = get_layout(domain)
+    lay = human_layout((rows, cols))
+    return ["".join(kind.tiles[t] for t in row) for row in lay], domain, cfg.name or f"human_{rows}x{cols}"
+
+
+def _size(value, what: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
+        raise NcaQdError(f"{what} must be a positive integer, got {value!r}")
+    return value
+
+
 def _default_agents(domain: str, shape: tuple[int, int]) -> int:
     """The domain's agent count at the nearer (by area) of its training and evaluation sizes."""
     from experiments.cli import compose_config as compose
@@ -75,9 +97,12 @@ def main(argv: list[str]) -> int:
     from nca_qd.export import FORMATS, export_files
     from nca_qd.sim.scenario import build_scenario
 
+    argv, domain_override = take_domain(argv)  # a plain string here, not run.yaml's config group
     cfg = compose_config("export", argv)
-    if bool(cfg.layout) == bool(cfg.run):
-        raise NcaQdError("give either layout=<file.json> or run=<run dir>")
+    if domain_override is not None:
+        cfg.domain = domain_override
+    if bool(cfg.layout) + bool(cfg.run) + bool(cfg.human) != 1:
+        raise NcaQdError("give one of layout=<file.json>, run=<run dir> or human=true")
     if cfg.format not in FORMATS:
         raise NcaQdError(f"unknown format {cfg.format!r} (known: {', '.join(FORMATS)})")
     if not cfg.out:
@@ -88,7 +113,7 @@ def main(argv: list[str]) -> int:
     parent = out if out.is_dir() else out.parent
     if parent.exists() and not os.access(parent, os.W_OK):
         raise NcaQdError(f"out={out}: folder {parent} is not writable")
-    rows, domain, name = _from_file(cfg) if cfg.layout else _from_run(cfg)
+    rows, domain, name = _from_file(cfg) if cfg.layout else _from_run(cfg) if cfg.run else _human(cfg)
     agents = int(cfg.agents) if cfg.agents is not None else _default_agents(domain, (len(rows), len(rows[0])))
     scen = build_scenario(rows, domain, n_agents=agents, source=name)
     files = export_files(
@@ -99,7 +124,14 @@ def main(argv: list[str]) -> int:
         atomic_write_text(out / fname, text)
     print(
         json.dumps(
-            {"format": cfg.format, "domain": domain, "agents": agents, "files": [str(out / f) for f in files]}
+            {
+                "format": cfg.format,
+                "domain": domain,
+                "size": f"{len(rows)}x{len(rows[0])}",
+                **({"shelves": "".join(rows).count("@")} if domain.startswith("warehouse") else {}),
+                "agents": agents,
+                "files": [str(out / f) for f in files],
+            }
         )
     )
     return 0

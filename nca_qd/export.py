@@ -13,6 +13,9 @@
   then a workstation; manufacturing: one station of each kind), each goal drawn as this
   project's simulators draw it (the uneven warehouse's left workstations five times as likely).
 
+- **json**: the paper's map file (``name``, ``n_row``, ``n_col``, ``layout``), which this
+  project's commands read (``experiments.simulate layout=``, ``experiments.repair``).
+
 Starts are distinct free cells drawn from ``seed``; the same seed gives the same files.
 """
 
@@ -26,7 +29,7 @@ import numpy as np
 from nca_qd.errors import NcaQdError
 from nca_qd.sim.scenario import Scenario
 
-FORMATS = ("movingai", "lorr")
+FORMATS = ("movingai", "lorr", "json")
 
 
 def movingai_map(scen: Scenario) -> str:
@@ -124,4 +127,8 @@ def export_files(
         }
     if fmt == "lorr":
         return lorr_files(scen, name, n_agents, n_tasks, seed, reveal)
+    if fmt == "json":
+        h, w = scen.shape
+        mapfile = {"name": name, "n_row": h, "n_col": w, "layout": list(scen.rows)}
+        return {f"{name}.json": json.dumps(mapfile, indent=4)}
     raise NcaQdError(f"unknown format {fmt!r} (known: {', '.join(FORMATS)})")

@@ -116,9 +116,12 @@ def test_uneven_tasks_favour_the_left_workstations():
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["format=lorr", "out=x"], "give either layout=<file.json> or run=<run dir>"),
-        (["layout=a.json", "run=b", "out=x"], "give either layout=<file.json> or run=<run dir>"),
-        (["layout=a.json", "format=gif", "out=x"], "unknown format 'gif' (known: movingai, lorr)"),
+        (["format=lorr", "out=x"], "give one of layout=<file.json>, run=<run dir> or human=true"),
+        (["layout=a.json", "run=b", "out=x"], "give one of layout=<file.json>, run=<run dir> or human=true"),
+        (["layout=a.json", "format=gif", "out=x"], "unknown format 'gif' (known: movingai, lorr, json)"),
+        (["human=true", "rows=40", "out=x"], "human=true needs rows=<R> cols=<C>"),
+        (["human=true", "domain=manufacturing", "rows=9", "cols=9", "out=x"], "draws warehouses"),
+        (["human=true", "rows=3", "cols=20", "out=x"], "needs at least 5 rows"),
         (["layout=missing.json", "out=x"], "missing.json"),
     ],
 )
@@ -145,3 +148,36 @@ def test_a_shipped_generator_in_five_lines():
     assert len(g.rows(layout)) == 33 and set("".join(g.rows(layout))) <= set(g.tiles)
     with pytest.raises(NcaQdError, match="no elite in archive cell"):
         load_generator(run, cell=-1)
+
+
+def test_the_human_warehouse_of_any_size_is_drawn_by_a_command(tmp_path):
+    """human=true draws the human-designed warehouse (the paper's seven sizes cell for cell, where
+    the reference maps are here; their shelf counts, the paper's N_s, always); its json file is
+    what experiments.simulate reads; and its shelf count is N_s at sizes the paper has none for."""
+    from nca_qd.layouts import warehouse as wh
+    from nca_qd.repair.validator import violations
+
+    for (h, w), n_shelves in wh.SHELVES_BY_SIZE.items():
+        lay = wh.human_layout((h, w))
+        assert int((lay == wh.SHELF).sum()) == n_shelves
+        ref = MAPS / "warehouse" / f"human_{h}x{w}.json"
+        if ref.is_file():
+            assert ["".join(".@ew"[t] for t in row) for row in lay] == load_map(ref).rows
+        assert violations(lay, wh.rules((h, w))) == []  # the layout validator: a valid warehouse
+    big = wh.human_layout((140, 500))
+    assert wh.default_shelves((140, 500)) == int((big == wh.SHELF).sum()) > 15_000
+    assert violations(big, wh.rules((140, 500))) == []
+    args = ["human=true", "domain=warehouse_uneven", "rows=41", "cols=60", "format=json", f"out={tmp_path}"]
+    res = export(args)
+    assert res.returncode == 0, res.stderr
+    line = json.loads(res.stdout)
+    assert line["domain"] == "warehouse_uneven" and line["size"] == "41x60"
+    mapfile = load_map(tmp_path / "human_41x60.json")
+    assert line["shelves"] == "".join(mapfile.rows).count("@") == wh.default_shelves((41, 60))
+    sim = subprocess.run(
+        [sys.executable, "-m", "experiments.simulate", "domain=warehouse_uneven",
+         f"layout={tmp_path / 'human_41x60.json'}", "agents=50", "T=50", "seeds=1", "planner=pibt"],
+        cwd=REPO, capture_output=True, text=True, timeout=600,
+        env={**__import__("os").environ, "JAX_PLATFORMS": "cpu"},
+    )  # fmt: skip
+    assert sim.returncode == 0 and json.loads(sim.stdout.splitlines()[-1])["runs"] == 1, sim.stderr

@@ -68,16 +68,35 @@ def storage(layout: np.ndarray) -> np.ndarray:
     return np.asarray(layout)[..., :, FRAME:-FRAME]
 
 
-def default_shelves(shape: tuple[int, int]) -> int:
-    """N_s for a full map of ``shape``: the human-designed layout's shelf count at that size."""
-    key = (int(shape[0]), int(shape[1]))
-    if key not in SHELVES_BY_SIZE:
-        sizes = ", ".join(f"{h}x{w}" for h, w in SHELVES_BY_SIZE)
+def human_layout(shape: tuple[int, int]) -> np.ndarray:
+    """The human-designed warehouse of any full-map size, as the paper's appendix draws them:
+    the frame (workstation columns), then rows repeating [aisle, endpoints, shelves, endpoints]
+    from the first row (rows after the last aisle that cannot hold a whole block stay aisles)
+    and, across, shelf blocks 10 cells long between one-cell aisles (a last block may be
+    shorter). It reproduces the paper's seven human maps, 33x36 ... 101x102, cell for cell."""
+    h, w = int(shape[0]), int(shape[1])
+    if h < 5 or w < 2 * FRAME + 1:
         raise NcaQdError(
-            f"no default shelf count for a {shape[0]}x{shape[1]} warehouse "
-            f"(known sizes: {sizes}); give n_shelves=<N>"
+            f"a human-designed warehouse needs at least 5 rows and {2 * FRAME + 1} columns, got {h}x{w}"
         )
-    return SHELVES_BY_SIZE[key]
+    _, lay = frame((h, w))
+    cols = np.arange(FRAME, w - FRAME)
+    cols = cols[(cols - FRAME) % 11 != 10]
+    for r in range(1, 4 * ((h - 1) // 4)):
+        if r % 4:
+            lay[r, cols] = SHELF if r % 4 == 2 else ENDPOINT
+    return lay
+
+
+def default_shelves(shape: tuple[int, int]) -> int:
+    """N_s for a full map of ``shape``: the human-designed layout's shelf count at that size (the
+    paper's table where it gives one, else the count of :func:`human_layout`)."""
+    key = (int(shape[0]), int(shape[1]))
+    if key in SHELVES_BY_SIZE:
+        return SHELVES_BY_SIZE[key]
+    if key[0] < 5 or key[1] < 2 * FRAME + 1:
+        raise NcaQdError(f"no default shelf count for a {key[0]}x{key[1]} warehouse; give n_shelves=<N>")
+    return int((human_layout(key) == SHELF).sum())
 
 
 def rules(shape: tuple[int, int], n_shelves: int | None = None) -> Rules:
