@@ -7,21 +7,30 @@ The plan (``experiments/conf/campaign/<plan>.yaml`` or a path) names a root fold
 common to every arm and each arm's own; arm ``a`` runs in ``<root>/<a>``. Each call goes on
 from where the last stopped: a finished arm is skipped, a started one resumed
 (``experiments.run resume=``), the next one started, each with what is left of this call's
-``leg_seconds``. Exit 0 when every arm has finished, 75 when the time ran out first (call again;
-commit the arms' folders between calls to carry them to another machine). Bad input: one line,
-exit 2.
+``leg_seconds``. Where the plan names ``evaluate: [overrides]``, a finished arm is then
+evaluated (``experiments.evaluate run_dir=<root>/<arm> <overrides>``, into
+``<root>/<arm>/evaluation``) before the next arm starts: every arm with the same protocol, and
+the comparison's tables need each arm's ``evaluation/summary.csv``. An evaluation cut by the
+call's time keeps its finished runs (``evaluation/*.jsonl``) and the next call goes on from them.
+Exit 0 when every arm has finished (and been evaluated), 75 when the time ran out first (call
+again; commit the arms' folders between calls to carry them to another machine). Bad input: one
+line, exit 2.
 """
 
 from __future__ import annotations
 
 import csv
+import signal
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from experiments.cli import CONF_DIR, RESUME_HINT, compose_config, main_guard
+from experiments.evaluate import main as evaluate_main
 from experiments.run import EXIT_LEG_ENDED
 from experiments.run import main as run_main
 from nca_qd.errors import NcaQdError
@@ -31,8 +40,15 @@ from nca_qd.errors import NcaQdError
 MIN_LEG_S = 60.0
 
 
-def load_plan(name: str) -> tuple[Path, list[str], dict[str, list[str]]]:
-    """``(root, common overrides, {arm: overrides})`` of a plan, checked."""
+def _overrides(path: Path, what: str, overrides: Any) -> list[str]:
+    if not isinstance(overrides, ListConfig) or not all(isinstance(o, str) and "=" in o for o in overrides):
+        raise NcaQdError(f"{path}: {what} must be a list of key=value")
+    return [str(o) for o in overrides]
+
+
+def load_plan(name: str) -> tuple[Path, list[str], dict[str, list[str]], list[str] | None]:
+    """``(root, common overrides, {arm: overrides}, evaluate overrides or None)`` of a plan,
+    checked."""
     path = Path(name) if name.endswith((".yaml", ".yml")) else CONF_DIR / "campaign" / f"{name}.yaml"
     if not path.is_file():
         raise NcaQdError(f"plan={name}: no such plan ({path})")
@@ -42,14 +58,56 @@ def load_plan(name: str) -> tuple[Path, list[str], dict[str, list[str]]]:
     common = list(raw.get("common") or [])
     arms: dict[str, list[str]] = {}
     for arm, overrides in raw.arms.items():
-        if not isinstance(overrides, ListConfig) or not all(
-            isinstance(o, str) and "=" in o for o in overrides
-        ):
-            raise NcaQdError(f"{path}: arm {arm}'s overrides must be a list of key=value")
-        if any(o.startswith(("run_dir=", "resume=", "leg_seconds=")) for o in [*common, *overrides]):
+        arms[str(arm)] = _overrides(path, f"arm {arm}'s overrides", overrides)
+        if any(o.startswith(("run_dir=", "resume=", "leg_seconds=")) for o in [*common, *arms[str(arm)]]):
             raise NcaQdError(f"{path}: run_dir, resume and leg_seconds are the campaign's to set")
-        arms[str(arm)] = [str(o) for o in overrides]
-    return Path(str(raw.root)), [str(c) for c in common], arms
+    evaluate = None
+    if raw.get("evaluate") is not None:
+        evaluate = _overrides(path, "evaluate", raw.evaluate)
+        if any(o.startswith(("run_dir=", "out=")) for o in evaluate):
+            raise NcaQdError(f"{path}: the evaluation's run_dir and out are the campaign's to set")
+    return Path(str(raw.root)), [str(c) for c in common], arms, evaluate
+
+
+def evaluated(run_dir: Path) -> bool:
+    """Whether an arm's evaluation has finished (it writes summary.csv last)."""
+    return (run_dir / "evaluation" / "summary.csv").is_file()
+
+
+class LegEnded(KeyboardInterrupt):
+    """The call's time ran out during an evaluation: raised like Ctrl-C, so the evaluation
+    stops its runs and keeps the finished ones, as it does on Ctrl-C or SIGTERM."""
+
+
+@contextmanager
+def _deadline(seconds: float | None) -> Iterator[None]:
+    """Raise :class:`LegEnded` in the main thread after ``seconds`` (None: never)."""
+    if seconds is None:
+        yield
+        return
+
+    def _ring(signum: int, frame: Any) -> None:
+        raise LegEnded
+
+    old = signal.signal(signal.SIGALRM, _ring)
+    signal.setitimer(signal.ITIMER_REAL, max(seconds, 0.001))
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)
+
+
+def _evaluate(arm: str, run_dir: Path, overrides: list[str], left: float | None) -> int:
+    """Evaluate a finished arm within ``left`` seconds: 0 when done, 75 when cut."""
+    print(f"{arm}: evaluating ({' '.join(overrides) or 'the defaults'})", flush=True)
+    try:
+        with _deadline(left):
+            code = evaluate_main([f"run_dir={run_dir}", *overrides])
+    except LegEnded:
+        print(f"{arm}: evaluation cut by this call's time; its finished runs are kept", flush=True)
+        return EXIT_LEG_ENDED
+    return code
 
 
 def progress(run_dir: Path) -> dict[str, Any]:
@@ -92,21 +150,31 @@ def main(argv: list[str]) -> int:
         isinstance(budget, bool) or not isinstance(budget, (int, float)) or budget <= 0
     ):
         raise NcaQdError(f"leg_seconds must be a positive number of seconds or null, got {budget!r}")
-    root, common, arms = load_plan(str(cfg.plan))
+    root, common, arms, evaluate = load_plan(str(cfg.plan))
     if cfg.status:
         for arm in arms:
-            print(_status_line(arm, progress(root / arm)))
+            line = _status_line(arm, progress(root / arm))
+            if evaluate is not None and progress(root / arm)["state"] == "finished":
+                line += ", evaluated" if evaluated(root / arm) else ", not yet evaluated"
+            print(line)
         return 0
     end = None if budget is None else time.monotonic() + float(budget)
     for arm, overrides in arms.items():
         run_dir = root / arm
         state = progress(run_dir)
-        if state["state"] == "finished":
+        to_evaluate = evaluate is not None and not evaluated(run_dir)
+        if state["state"] == "finished" and not to_evaluate:
             continue
         left = None if end is None else end - time.monotonic()
         if left is not None and left < MIN_LEG_S:
             print(f"{arm}: left for the next call (this call's leg_seconds are used)")
             return EXIT_LEG_ENDED
+        if state["state"] == "finished":
+            assert evaluate is not None
+            code = _evaluate(arm, run_dir, evaluate, left)
+            if code != 0:
+                return code
+            continue
         leg = [] if left is None else [f"leg_seconds={max(left, 1.0):.1f}"]
         print(f"{arm}: {'resuming' if state['state'] == 'started' else 'starting'} in {run_dir}", flush=True)
         if state["state"] == "started":
@@ -118,7 +186,15 @@ def main(argv: list[str]) -> int:
             return EXIT_LEG_ENDED
         if code != 0:
             return code
-    print(f"every arm of {cfg.plan} has finished")
+        if evaluate is not None:
+            left = None if end is None else end - time.monotonic()
+            if left is not None and left < MIN_LEG_S:
+                print(f"{arm}: its evaluation is left for the next call")
+                return EXIT_LEG_ENDED
+            code = _evaluate(arm, run_dir, evaluate, left)
+            if code != 0:
+                return code
+    print(f"every arm of {cfg.plan} has finished" + (" and been evaluated" if evaluate is not None else ""))
     return 0
 
 

@@ -3,6 +3,8 @@ going on where the last stopped."""
 
 from __future__ import annotations
 
+import csv
+
 import pytest
 from omegaconf import OmegaConf
 from test_scoring import TINY_WAREHOUSE
@@ -52,3 +54,73 @@ def test_a_bad_campaign_plan_is_one_clear_error(tmp_path):
         campaign.main([f"plan={bad}"])
     with pytest.raises(NcaQdError, match="leg_seconds must be a positive number"):
         campaign.main([f"plan={bad}", "leg_seconds=0"])
+
+
+def test_a_campaign_evaluates_each_finished_arm_with_the_plans_protocol(tmp_path, capsys, monkeypatch):
+    """A plan with ``evaluate:`` evaluates an arm once its search has finished (into
+    <arm>/evaluation, with the plan's overrides), reports it in status, and skips it after."""
+    from experiments import campaign
+
+    args = [a for a in TINY_WAREHOUSE if "improve_windows" not in a]
+    common = [a for a in args if a.startswith("domain")] + ["eval.workers=0", "output.pictures=false"]
+    qd = [a for a in args if a.startswith("qd.")] + ["qd.n_evals=6", "seed=0"]
+    evaluate = [
+        "T=30",
+        "runs.train=2",
+        "runs.eval=1",
+        "exact.train=1",
+        "exact.eval=0",
+        "sweep.train.agents=[]",
+        "sweep.eval.agents=[]",
+        "sizes.shapes=[]",
+        "baselines.human=false",
+        "eval.workers=0",
+        "progress=false",
+    ]
+    plan = tmp_path / "plan.yaml"
+    plan.write_text(f"root: {tmp_path / 'arms'}\ncommon: {common}\narms:\n  a: {qd}\nevaluate: {evaluate}\n")
+    assert campaign.main([f"plan={plan}"]) == 0
+    run_dir = tmp_path / "arms" / "a"
+    assert campaign.progress(run_dir)["state"] == "finished" and campaign.evaluated(run_dir)
+    with (run_dir / "evaluation" / "summary.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    # the plan's protocol: at S two runs, one of them exact; at S_eval one (screened)
+    runs = {(r["kind"], r["which"], r["simulator"]): r["runs"] for r in rows}
+    assert runs[("nca", "train", "rhcr")] == "1" and runs[("nca", "train", "screen")] == "2"
+    assert runs[("nca", "eval", "screen")] == "1" and runs.get(("nca", "eval", "rhcr"), "0") in ("0", "")
+    assert "evaluated" in capsys.readouterr().out
+    assert campaign.main([f"plan={plan}", "status=true"]) == 0
+    assert capsys.readouterr().out.strip().endswith(", evaluated")
+    assert campaign.main([f"plan={plan}"]) == 0  # evaluated: nothing left
+    assert "has finished and been evaluated" in capsys.readouterr().out
+
+
+def test_an_evaluation_cut_by_the_calls_time_ends_the_leg(tmp_path, monkeypatch):
+    """The call's time runs out inside an evaluation: it is stopped as by Ctrl-C (its finished
+    runs kept) and the campaign exits 75 at once, not when the evaluation would have ended."""
+    import time
+
+    from experiments import campaign
+
+    def slow(argv):
+        time.sleep(30)
+        return 0
+
+    monkeypatch.setattr(campaign, "evaluate_main", slow)
+    t0 = time.monotonic()
+    assert campaign._evaluate("a", tmp_path, [], 0.2) == 75
+    assert time.monotonic() - t0 < 5
+    monkeypatch.setattr(campaign, "evaluate_main", lambda argv: 0)
+    assert campaign._evaluate("a", tmp_path, [], None) == 0
+
+
+def test_a_plans_evaluation_may_not_set_where_it_writes(tmp_path):
+    from experiments import campaign
+
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("root: x\narms:\n  a: [seed=0]\nevaluate: [out=elsewhere]\n")
+    with pytest.raises(NcaQdError, match="run_dir and out are the campaign's"):
+        campaign.main([f"plan={bad}"])
+    bad.write_text("root: x\narms:\n  a: [seed=0]\nevaluate: T=30\n")
+    with pytest.raises(NcaQdError, match="evaluate must be a list of key=value"):
+        campaign.main([f"plan={bad}"])
