@@ -102,10 +102,10 @@ TILE_NAMES = {"@": "shelves", "e": "endpoints"}
 
 def placed_counts(lay: EvalLayout, tiles: str) -> dict[str, int | None]:
     """Per non-empty tile the generator places (``tiles``: its alphabet, a prefix of the
-    layout's; a fixed frame's tiles are not counted): how many the NCA placed (``nca_*``, the unrepaired layout), how many
-    the layout holds (``repaired_*``) and how many of the NCA's the repair kept (``kept_*``):
-    how much of a layout is the generator's and how much the repair's (issue 55). Empty for
-    layouts without an unrepaired version (the human ones)."""
+    layout's; a fixed frame's tiles are not counted): how many the NCA placed (``nca_*``, the
+    unrepaired layout), how many the layout holds (``repaired_*``) and how many of the NCA's the
+    repair kept (``kept_*``): how much of a layout is the generator's and how much the repair's
+    (issue 55). Empty for layouts without an unrepaired version (the human ones)."""
     out: dict[str, int | None] = {}
     nca = None if lay.unrepaired is None else np.asarray(lay.unrepaired)
     fin = None if lay.layout is None else np.asarray(lay.layout)
