@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from nca_qd.errors import NcaQdError
 from nca_qd.io import load_map, reference_maps_dir
 
 MAPS = reference_maps_dir()
@@ -153,7 +154,7 @@ def test_a_shipped_generator_in_five_lines():
 def test_the_human_warehouse_of_any_size_is_drawn_by_a_command(tmp_path):
     """human=true draws the human-designed warehouse (the paper's seven sizes cell for cell, where
     the reference maps are here; their shelf counts, the paper's N_s, always); its json file is
-    what experiments.simulate reads; and its shelf count is N_s at sizes the paper has none for."""
+    what experiments.simulate reads; and where the paper has no N_s, the error names its count."""
     from nca_qd.layouts import warehouse as wh
     from nca_qd.repair.validator import violations
 
@@ -165,7 +166,11 @@ def test_the_human_warehouse_of_any_size_is_drawn_by_a_command(tmp_path):
             assert ["".join(".@ew"[t] for t in row) for row in lay] == load_map(ref).rows
         assert violations(lay, wh.rules((h, w))) == []  # the layout validator: a valid warehouse
     big = wh.human_layout((140, 500))
-    assert wh.default_shelves((140, 500)) == int((big == wh.SHELF).sum()) > 15_000
+    assert int((big == wh.SHELF).sum()) == 15_334
+    with pytest.raises(
+        NcaQdError, match="give n_shelves=<N>; the human-designed layout of that size holds 15334"
+    ):
+        wh.default_shelves((140, 500))  # the caller names N_s where the paper has none
     assert violations(big, wh.rules((140, 500))) == []
     args = ["human=true", "domain=warehouse_uneven", "rows=41", "cols=60", "format=json", f"out={tmp_path}"]
     res = export(args)
@@ -173,7 +178,11 @@ def test_the_human_warehouse_of_any_size_is_drawn_by_a_command(tmp_path):
     line = json.loads(res.stdout)
     assert line["domain"] == "warehouse_uneven" and line["size"] == "41x60"
     mapfile = load_map(tmp_path / "human_41x60.json")
-    assert line["shelves"] == "".join(mapfile.rows).count("@") == wh.default_shelves((41, 60))
+    assert (
+        line["shelves"]
+        == "".join(mapfile.rows).count("@")
+        == int((wh.human_layout((41, 60)) == wh.SHELF).sum())
+    )
     sim = subprocess.run(
         [sys.executable, "-m", "experiments.simulate", "domain=warehouse_uneven",
          f"layout={tmp_path / 'human_41x60.json'}", "agents=50", "T=50", "seeds=1", "planner=pibt"],

@@ -733,7 +733,9 @@ def test_each_scoring_setting_has_one_default_the_yamls():
     plain = ScoringConfig()
     checked = 0
     for f in fields(ScoringConfig):
-        if f.name in shipped:
+        # (ScoringConfig.planner holds the planner's knobs as keyword arguments, built from the
+        # block by from_cfg below; eval.planner is one of those knobs, the planner's name)
+        if f.name in shipped and f.name != "planner":
             want = shipped[f.name]
             got = getattr(plain, f.name)
             assert (list(got) if isinstance(got, tuple) else got) == want, f.name

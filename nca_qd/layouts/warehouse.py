@@ -89,14 +89,22 @@ def human_layout(shape: tuple[int, int]) -> np.ndarray:
 
 
 def default_shelves(shape: tuple[int, int]) -> int:
-    """N_s for a full map of ``shape``: the human-designed layout's shelf count at that size (the
-    paper's table where it gives one, else the count of :func:`human_layout`)."""
+    """N_s for a full map of ``shape``: the human-designed layout's shelf count at the paper's
+    sizes. Elsewhere the caller names it (the error says what :func:`human_layout` holds there):
+    a repair that silently took a count the user did not choose would move their layout."""
     key = (int(shape[0]), int(shape[1]))
-    if key in SHELVES_BY_SIZE:
-        return SHELVES_BY_SIZE[key]
-    if key[0] < 5 or key[1] < 2 * FRAME + 1:
-        raise NcaQdError(f"no default shelf count for a {key[0]}x{key[1]} warehouse; give n_shelves=<N>")
-    return int((human_layout(key) == SHELF).sum())
+    if key not in SHELVES_BY_SIZE:
+        sizes = ", ".join(f"{h}x{w}" for h, w in SHELVES_BY_SIZE)
+        human = ""
+        if key[0] >= 5 and key[1] >= 2 * FRAME + 1:
+            human = (
+                f"; the human-designed layout of that size holds {int((human_layout(key) == SHELF).sum())}"
+            )
+        raise NcaQdError(
+            f"no default shelf count for a {key[0]}x{key[1]} warehouse (known sizes: {sizes}); "
+            f"give n_shelves=<N>{human}"
+        )
+    return SHELVES_BY_SIZE[key]
 
 
 def rules(shape: tuple[int, int], n_shelves: int | None = None) -> Rules:
