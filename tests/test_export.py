@@ -171,7 +171,7 @@ def test_the_human_warehouse_of_any_size_is_drawn_by_a_command(tmp_path):
         NcaQdError, match="give n_shelves=<N>; the human-designed layout of that size holds 15334"
     ):
         wh.default_shelves((140, 500))  # the caller names N_s where the paper has none
-    assert violations(big, wh.rules((140, 500))) == []
+    assert violations(big, wh.rules((140, 500), 15_334)) == []
     args = ["human=true", "domain=warehouse_uneven", "rows=41", "cols=60", "format=json", f"out={tmp_path}"]
     res = export(args)
     assert res.returncode == 0, res.stderr
