@@ -124,7 +124,9 @@ def evaluated(tmp_path_factory, maps):
 
 
 def read(path: Path) -> list[dict[str, str]]:
-    with path.open() as fh:
+    import gzip
+
+    with gzip.open(path, "rt") if path.suffix == ".gz" else path.open() as fh:
         return list(csv.DictReader(fh))
 
 
@@ -141,7 +143,8 @@ def test_every_output_is_written(evaluated):
     ):
         if stem != "summary":
             assert (out / f"{stem}.png").stat().st_size > 1000, stem
-        assert read(out / f"{stem}.csv"), stem
+        gz = stem.startswith(("tasks_over_time", "tile_usage"))  # per step / per tile: compressed
+        assert read(out / f"{stem}.csv{'.gz' if gz else ''}"), stem
     for name in (
         "summary.md",
         "runs.csv",
@@ -226,7 +229,7 @@ def test_curves_heatmaps_and_tasks(evaluated):
         (lab, n, "screen") for lab in ("NCA (cell 3)", "human") for n in ("4", "8")
     }
     assert all(r["runs"] == "2" for r in curve)
-    heat = read(out / "tile_usage_train.csv")
+    heat = read(out / "tile_usage_train.csv.gz")
     nca = [r for r in heat if r["kind"] == "nca"]
     assert len(nca) == 9 * 14 and {r["simulator"] for r in heat} == {"rhcr"}  # RHCR preferred
     assert all(float(r["visits_mean"]) == 0 for r in nca if r["tile"] == "@")
@@ -240,7 +243,7 @@ def test_curves_heatmaps_and_tasks(evaluated):
     assert len(stops) == 2
     total = sum(float(r["visits_mean"]) for r in nca)
     assert total == pytest.approx(8 * np.mean(stops))
-    tasks = read(out / "tasks_over_time_train.csv")
+    tasks = read(out / "tasks_over_time_train.csv.gz")
     for lab, sim in {(r["layout"], r["simulator"]) for r in tasks}:
         ts = [r for r in tasks if r["layout"] == lab and r["simulator"] == sim]
         assert [int(r["t"]) for r in ts] == list(range(1, 41))
@@ -709,6 +712,69 @@ def test_the_repair_record_keys_on_every_input_and_keeps_only_found_layouts(tmp_
     )
     np.testing.assert_array_equal(got.layout, lay)
     assert again.get("failed") is None  # a repair that found nothing is tried again
+
+
+def test_an_evaluation_with_the_pibt_planner_labels_its_exact_runs_pibt(evaluated):
+    out, _ = evaluated
+    run_dir = out.parent / "run"
+    out2 = out.parent / "evaluation_pibt"
+    args = [f"run_dir={run_dir}", f"out={out2}", *FAST, "exact.planner=pibt"]
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert evaluate_cli.main(args) == 0
+    runs = read(out2 / "runs.csv")
+    exact = [r for r in runs if r["simulator"] != "screen"]
+    assert exact and {r["simulator"] for r in exact} == {"pibt"}
+    assert {r["simulator"] for r in read(out2 / "summary.csv")} <= {"pibt", "screen", ""}
+    assert {r["simulator"] for r in read(out2 / "tile_usage_train.csv.gz")} == {"pibt"}
+    md = (out2 / "summary.md").read_text()
+    assert "pibt = exact" in md and "| rhcr |" not in md
+    # the RHCR evaluation of the same run says rhcr, as before
+    assert "rhcr" in {r["simulator"] for r in read(out / "runs.csv")}
+
+
+def test_records_pack_narrow_and_an_evaluation_prunes_what_it_did_not_use(tmp_path):
+    import base64
+    import json
+    import zlib
+
+    from nca_qd.evaluation.store import ExactRunStore, _pack, _unpack
+
+    visits = np.array([[0, 3958], [7, 1]], dtype=np.int32)  # fits two bytes, not one
+    packed = _pack(visits)
+    assert packed["dtype"] == "<i4" and packed["stored"] == "<u2"
+    back = _unpack(packed)
+    assert back.dtype == np.int32
+    np.testing.assert_array_equal(back, visits)
+    wide = np.array([-1, 70000], dtype=np.int64)
+    np.testing.assert_array_equal(_unpack(_pack(wide)), wide)
+    assert _unpack(_pack(wide)).dtype == np.int64
+    # a record written before "stored" existed (bytes in the declared dtype) still reads
+    raw = base64.b64encode(zlib.compress(visits.tobytes())).decode()
+    old = {"dtype": "<i4", "shape": [2, 2], "zlib_b64": raw}
+    np.testing.assert_array_equal(_unpack(old), visits)
+
+    tasks = np.arange(40, dtype=np.int32) % 3
+    first = ExactRunStore(tmp_path)
+    for k in ("a", "b", "c"):
+        first.add(k, RunOutcome("rhcr", 0, 0.5, True, 40, False, 1.0, None, tasks, visits))
+    first.add("a", RunOutcome("rhcr", 0, 0.5, True, 40, False, 1.0, None, tasks, visits))  # 2 lines
+    # the next evaluation into the folder asks for a and b only, then ends and prunes
+    second = ExactRunStore(tmp_path)
+    assert second.get("a", True) is not None and second.get("b", False) is not None
+    assert second.prune() == 1
+    main = [json.loads(x)["key"] for x in (tmp_path / "exact_runs.jsonl").read_text().splitlines()]
+    spare = [
+        json.loads(x)["key"] for x in (tmp_path / "exact_runs.superseded.jsonl").read_text().splitlines()
+    ]
+    assert (main, spare) == (["a", "b"], ["c"])
+    # nothing is lost: a later evaluation that asks for c gets it, and c moves back
+    third = ExactRunStore(tmp_path)
+    got = third.get("c", True)
+    assert got is not None
+    np.testing.assert_array_equal(got.tile_visits, visits)
+    assert third.prune() == 2  # a and b were not asked for this time
+    fourth = ExactRunStore(tmp_path)
+    assert len(fourth) == 1 and all(fourth.get(k, True) is not None for k in "abc")
 
 
 def load_map_rows(rows):

@@ -92,11 +92,13 @@ def run_evaluation(root: Path, out: Path | None = None) -> Path:
 
 
 def csv_files(root: Path) -> list[str]:
-    return sorted(str(p.relative_to(root)) for p in root.rglob("*.csv"))
+    return sorted(str(p.relative_to(root)) for pat in ("*.csv", "*.csv.gz") for p in root.rglob(pat))
 
 
 def read(path: Path) -> tuple[list[str], list[dict[str, str]]]:
-    with path.open(newline="") as fh:
+    import gzip
+
+    with gzip.open(path, "rt", newline="") if path.suffix == ".gz" else path.open(newline="") as fh:
         reader = csv.DictReader(fh)
         return list(reader.fieldnames or []), list(reader)
 

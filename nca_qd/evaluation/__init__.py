@@ -198,6 +198,10 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
     if selection:
         write_selection(out, selection, tiles)
     remove_stale_outputs(out, t_write - 2.0)
+    if ecfg["prune_records"]:  # every run asked for is in: the record files keep what it used
+        for st in (repair_store, store, screen_store):
+            if st is not None:
+                st.prune()
     return Evaluation(name, out, layouts, requests, results, summary, md)
 
 

@@ -47,8 +47,10 @@ OUTPUT_PATTERNS = (
     "throughput_vs_agents_*.csv",
     "throughput_vs_agents_*.png",
     "tasks_over_time_*.csv",
+    "tasks_over_time_*.csv.gz",
     "tasks_over_time_*.png",
     "tile_usage_*.csv",
+    "tile_usage_*.csv.gz",
     "tile_usage_*.png",
     "scaling_sizes.csv",
     "scaling_sizes.png",
@@ -80,8 +82,13 @@ def write_outputs(
     from nca_qd.io import atomic_write_text
 
     tiles, T, name = domain.layout_tiles, plan.T, plan.name
+    exact = plan.exact.planner.get("planner", "rhcr")
+
+    def lab(sim: str) -> str:  # the runs' internal "rhcr" means exact, by whichever planner
+        return exact if sim == "rhcr" else sim
+
     _write_layouts(out, name, layouts, tiles, domain.palette)
-    _write_runs(out, layouts, results)
+    _write_runs(out, layouts, results, lab)
     stat_rows: dict[str, list[dict[str, Any]]] = {}
     for r in requests:
         for sim, outs in request_runs(results, r).items():
@@ -89,17 +96,19 @@ def write_outputs(
                 {
                     **layout_cols(layouts[r.layout]),
                     "n_agents": r.n_agents,
-                    "simulator": sim,
+                    "simulator": lab(sim),
                     **run_stats(outs),
                 }
             )
     for which in ("train", "eval"):
         _write_sweep(out, which, name, stat_rows.get(f"sweep_{which}", []), T)
-        _write_detail(out, which, name, layouts, requests, results, T, plan.tasks_smooth, tiles)
+        _write_detail(out, which, name, layouts, requests, results, T, plan.tasks_smooth, tiles, lab)
     _write_sizes(out, stat_rows.get("sizes", []))
     summary = summary_rows(name, layouts, requests, results, plan)
+    for row in summary:
+        row["simulator"] = lab(row["simulator"])
     write_csv(out / "summary.csv", summary, list(summary[0]) if summary else ["layout"])
-    md = summary_markdown(name, summary, T, plan.exact.planner.get("planner", "rhcr"))
+    md = summary_markdown(name, summary, T, exact)
     atomic_write_text(out / "summary.md", md)
     return summary, md
 
@@ -138,8 +147,8 @@ def _write_layouts(out: Path, name: str, layouts: dict[str, EvalLayout], tiles, 
             )
 
 
-def _write_runs(out: Path, layouts: dict[str, EvalLayout], results: Results) -> None:
-    """runs.csv: every run of every layout, agent count and simulator."""
+def _write_runs(out: Path, layouts: dict[str, EvalLayout], results: Results, lab) -> None:
+    """runs.csv: every run of every layout, agent count and simulator (``lab``: its label)."""
     run_rows = []
     for (key, n, sim), outs in results.items():
         for o in outs:
@@ -147,7 +156,7 @@ def _write_runs(out: Path, layouts: dict[str, EvalLayout], results: Results) -> 
                 {
                     **layout_cols(layouts[key]),
                     "n_agents": n,
-                    "simulator": sim,
+                    "simulator": lab(sim),
                     "seed": o.seed,
                     "throughput": o.throughput,
                     "success": o.success,
@@ -216,7 +225,7 @@ def _write_sizes(out: Path, size_rows: list[dict[str, Any]]) -> None:
 
 
 def _write_detail(
-    out: Path, which: str, scenario: str, layouts, requests, results, T: int, smooth: int, tiles: str
+    out: Path, which: str, scenario: str, layouts, requests, results, T: int, smooth: int, tiles: str, lab
 ) -> None:
     """Tasks over time and tile-usage heatmaps of the main comparison's runs at one size."""
     from nca_qd.io import array_to_rows
@@ -241,14 +250,14 @@ def _write_detail(
                     lo, hi = m - h, m + h
                 else:
                     lo = hi = np.full(T, np.nan)
-                series.append((lay.label, sim, m, lo, hi))
+                series.append((lay.label, lab(sim), m, lo, hi))
                 task_rows += [
                     {
                         "layout": lay.label,
                         "kind": lay.kind,
                         "size": lay.size,
                         "n_agents": r.n_agents,
-                        "simulator": sim,
+                        "simulator": lab(sim),
                         "runs": len(tps),
                         "t": t + 1,
                         "tasks_mean": m[t],
@@ -265,7 +274,7 @@ def _write_detail(
                 trav = build_scenario(array_to_rows(lay.layout, tiles), scenario).traversable
                 panels.append(
                     (
-                        f"{lay.label} ({'RHCR' if sim == 'rhcr' else 'screen'}, "
+                        f"{lay.label} ({lab(sim).upper() if sim == 'rhcr' else 'screen'}, "
                         f"{len(vis)} run(s), N_a={r.n_agents})",
                         mean,
                         trav,
@@ -277,7 +286,7 @@ def _write_detail(
                         "kind": lay.kind,
                         "size": lay.size,
                         "n_agents": r.n_agents,
-                        "simulator": sim,
+                        "simulator": lab(sim),
                         "runs": len(vis),
                         "row": i,
                         "col": j,
@@ -290,7 +299,7 @@ def _write_detail(
                 break
     if series:
         write_csv(
-            out / f"tasks_over_time_{which}.csv",
+            out / f"tasks_over_time_{which}.csv.gz",
             task_rows,
             [
                 "layout",
@@ -313,7 +322,7 @@ def _write_detail(
         )
     if panels:
         write_csv(
-            out / f"tile_usage_{which}.csv",
+            out / f"tile_usage_{which}.csv.gz",
             heat_rows,
             ["layout", "kind", "size", "n_agents", "simulator", "runs", "row", "col", "tile", "visits_mean"],
         )

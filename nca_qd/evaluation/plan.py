@@ -55,6 +55,9 @@ def validated(ecfg: Mapping[str, Any]) -> dict[str, Any]:
         reuse = e[part].setdefault("reuse", True)
         if not isinstance(reuse, bool):
             raise NcaQdError(f"{part}.reuse must be true or false, got {reuse!r}")
+    prune = e.setdefault("prune_records", True)
+    if not isinstance(prune, bool):
+        raise NcaQdError(f"prune_records must be true or false, got {prune!r}")
     from nca_qd.sim.rhcr import planner_options
 
     planner_options(e["exact"], "exact.")

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from nca_qd.evaluation.records import SIMULATORS, finite, parse_size
+from nca_qd.evaluation.records import finite, parse_size
 
 
 def _style(labels: Sequence[str]) -> dict[str, Any]:
@@ -36,6 +36,13 @@ def _legend_note(ax) -> None:
     ax.grid(alpha=0.3)
 
 
+def _simulators(rows: Sequence[Mapping[str, Any]]) -> list[str]:
+    """The simulators of ``rows`` in legend order: the exact planner's label (``rhcr``,
+    ``pibt``), then the screen."""
+    present = {r["simulator"] for r in rows}
+    return sorted(s for s in present if s != "screen") + (["screen"] if "screen" in present else [])
+
+
 def plot_curves(
     path: str | Path,
     rows: Sequence[Mapping[str, Any]],
@@ -56,7 +63,7 @@ def plot_curves(
     colours = _style(labels)
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     for lab in labels:
-        for sim in SIMULATORS:
+        for sim in _simulators(rows):
             pts = sorted(
                 (r for r in rows if r["layout"] == lab and r["simulator"] == sim), key=lambda r: r[x]
             )
@@ -69,7 +76,7 @@ def plot_curves(
             if sim == "screen":
                 ax.plot(xs, ys, "--", color=c, marker="o", mfc="none", ms=4, label=f"{lab} (screen)")
             else:
-                ax.plot(xs, ys, "-", color=c, marker="s", ms=5, label=f"{lab} (RHCR)")
+                ax.plot(xs, ys, "-", color=c, marker="s", ms=5, label=f"{lab} ({sim.upper()})")
             if band is not None:
                 lo = np.array(
                     [r.get(band[0]) if finite(r.get(band[0])) else np.nan for r in pts], dtype=float
@@ -133,7 +140,7 @@ def plot_sizes(path: str | Path, rows: Sequence[Mapping[str, Any]]) -> None:
     colours = _style(labels)
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     for lab in labels:
-        for sim in SIMULATORS:
+        for sim in _simulators(rows):
             pts = sorted(
                 (
                     r
@@ -146,7 +153,7 @@ def plot_sizes(path: str | Path, rows: Sequence[Mapping[str, Any]]) -> None:
                 continue
             xs = [pos[r["size"]] for r in pts]
             style = dict(ls="--", marker="o", mfc="none") if sim == "screen" else dict(ls="-", marker="s")
-            name = f"{lab} ({'screen' if sim == 'screen' else 'RHCR'})"
+            name = f"{lab} ({'screen' if sim == 'screen' else sim.upper()})"
             axes[0].plot(xs, [r["max_throughput_mean"] for r in pts], color=colours[lab], label=name, **style)
             err = [
                 (x, r["max_throughput_mean"], r["max_throughput_se"])
@@ -196,7 +203,12 @@ def plot_tasks(
         t = np.arange(1, m.size + 1)[(smooth - 1 if smooth > 1 and m.size >= smooth else 0) :]
         ls = "--" if sim == "screen" else "-"
         ax.plot(
-            t, ma(m), ls, color=colours[lab], lw=1, label=f"{lab} ({'screen' if sim == 'screen' else 'RHCR'})"
+            t,
+            ma(m),
+            ls,
+            color=colours[lab],
+            lw=1,
+            label=f"{lab} ({'screen' if sim == 'screen' else sim.upper()})",
         )
         if np.isfinite(lo).any():
             ax.fill_between(t, ma(lo), ma(hi), color=colours[lab], alpha=0.15, linewidth=0)

@@ -52,61 +52,108 @@ SCREEN_FILENAME = "screen_runs.jsonl"
 REPAIR_FILENAME = "repairs.jsonl"
 
 
+def _narrowest(a: np.ndarray) -> np.ndarray:
+    """An integer array in the narrowest integer type that holds its values (the same values):
+    per-step task counts and tile visits fit in one or two bytes where they are stored as four,
+    and a narrower array compresses to about two thirds."""
+    if a.dtype.kind not in "iu" or a.size == 0:
+        return a
+    lo, hi = int(a.min()), int(a.max())
+    for t in (np.uint8, np.int8, np.uint16, np.int16, np.uint32, np.int32):
+        info = np.iinfo(t)
+        if info.min <= lo and hi <= info.max and np.dtype(t).itemsize < a.dtype.itemsize:
+            return a.astype(t)
+    return a
+
+
 def _pack(a: np.ndarray | None) -> dict[str, Any] | None:
+    """An array as JSON: its dtype and shape, its bytes (in the narrowest integer type that holds
+    them, named by ``stored`` where it differs) zlib-compressed and base64-encoded."""
     if a is None:
         return None
     a = np.ascontiguousarray(a)
-    return {
-        "dtype": a.dtype.str,
-        "shape": list(a.shape),
-        "zlib_b64": base64.b64encode(zlib.compress(a.tobytes(), 6)).decode("ascii"),
-    }
+    narrow = _narrowest(a)
+    d: dict[str, Any] = {"dtype": a.dtype.str, "shape": list(a.shape)}
+    if narrow.dtype != a.dtype:
+        d["stored"] = narrow.dtype.str
+    d["zlib_b64"] = base64.b64encode(zlib.compress(narrow.tobytes(), 9)).decode("ascii")
+    return d
 
 
 def _unpack(d: Mapping[str, Any] | None) -> np.ndarray | None:
+    """The array :func:`_pack` wrote, in its own dtype (records written before ``stored``
+    existed hold the bytes in that dtype)."""
     if d is None:
         return None
     raw = zlib.decompress(base64.b64decode(d["zlib_b64"]))
-    return np.frombuffer(raw, dtype=np.dtype(d["dtype"])).reshape(d["shape"]).copy()
+    stored = np.dtype(d.get("stored", d["dtype"]))
+    a = np.frombuffer(raw, dtype=stored).reshape(d["shape"])
+    return a.astype(np.dtype(d["dtype"]))
 
 
 class JsonlRecords:
     """One evaluation folder's JSON-lines file of records by key, loaded once; :meth:`_append`
-    adds one, flushed and synced, so a crash keeps it."""
+    adds one, flushed and synced, so a crash keeps it.
+
+    Beside it, ``<name>.superseded.jsonl`` holds the records :meth:`prune` moved out (records
+    an evaluation into the folder did not use). They still serve lookups: a later evaluation
+    that asks for one gets it, and it moves back into the main file."""
 
     filename = FILENAME
+    what = "recorded run(s)"
 
     def __init__(self, out: Path):
         self.path = Path(out) / self.filename
         self._runs: dict[str, dict[str, Any]] = {}
+        self._spare: dict[str, dict[str, Any]] = {}  # the superseded file's records
+        self._used: set[str] = set()  # keys this evaluation found or added
         self._lock = threading.Lock()
         self._open_line = False  # the file ends inside a line (a write cut short)
+        if self.superseded_path.is_file():
+            self._spare, _ = self._read(self.superseded_path)
         if self.path.is_file():
-            self._load()
+            self._runs, self._open_line = self._read(self.path)
+            if self._runs:
+                log.info("%s: %d %s", self.path, len(self._runs), self.what)
 
-    def _load(self) -> None:
+    @property
+    def superseded_path(self) -> Path:
+        """Where :meth:`prune` moves the records an evaluation did not use."""
+        return self.path.with_name(self.path.name.replace(".jsonl", ".superseded.jsonl"))
+
+    @staticmethod
+    def _read(path: Path) -> tuple[dict[str, dict[str, Any]], bool]:
+        """The records of one file by key (a later line wins) and whether it ends inside a line."""
         bad = 0
-        text = self.path.read_text(encoding="utf-8", errors="replace")
-        self._open_line = bool(text) and not text.endswith("\n")
+        recs: dict[str, dict[str, Any]] = {}
+        text = path.read_text(encoding="utf-8", errors="replace")
         for line in text.splitlines():
             if not line.strip():
                 continue
             try:
                 rec = json.loads(line)
-                key = str(rec["key"])
+                recs[str(rec["key"])] = rec
             except (ValueError, KeyError, TypeError):
                 bad += 1
-                continue
-            self._runs[key] = rec
         if bad:
-            log.warning("%s: %d unreadable line(s) skipped (a write cut short?)", self.path, bad)
-        if self._runs:
-            log.info("%s: %d %s", self.path, len(self._runs), self.what)
-
-    what = "recorded run(s)"
+            log.warning("%s: %d unreadable line(s) skipped (a write cut short?)", path, bad)
+        return recs, bool(text) and not text.endswith("\n")
 
     def __len__(self) -> int:
         return len(self._runs)
+
+    def _find(self, key: str) -> dict[str, Any] | None:
+        """The record of ``key`` in the main file, else in the superseded one."""
+        rec = self._runs.get(key)
+        return self._spare.get(key) if rec is None else rec
+
+    def _use(self, key: str, rec: dict[str, Any]) -> None:
+        """Mark a found record as used by this evaluation; one from the superseded file goes
+        back into the main file."""
+        with self._lock:
+            if key not in self._runs:
+                self._append(key, rec)
+            self._used.add(key)
 
     def _append(self, key: str, rec: dict[str, Any]) -> None:
         line = json.dumps(rec) + "\n"
@@ -119,6 +166,42 @@ class JsonlRecords:
             fh.flush()
             os.fsync(fh.fileno())
         self._runs[key] = rec
+        self._used.add(key)
+
+    def prune(self) -> int:
+        """Keep in the main file only the records this evaluation used (one line per key,
+        arrays re-packed by :func:`_pack`); the others go to :attr:`superseded_path`, written
+        first, so nothing recorded is lost (records of earlier settings: screened runs beside
+        cells that have since got exact runs, runs of a layout a changed repair no longer
+        gives). Returns how many records moved. Called when an evaluation has ended with every
+        run it asked for: the main file then holds what the folder's outputs rest on (what to
+        ship), and the same command repeated reuses all of it."""
+        from nca_qd.io import atomic_write_text
+
+        with self._lock:
+            if not self.path.is_file():
+                return 0
+            moved = {k: r for k, r in self._runs.items() if k not in self._used}
+            spare = {k: r for k, r in self._spare.items() if k not in self._runs}
+            spare.update(moved)
+            if moved:
+                atomic_write_text(self.superseded_path, "".join(json.dumps(r) + "\n" for r in spare.values()))
+            kept = {k: _repacked(r) for k, r in self._runs.items() if k in self._used}
+            atomic_write_text(self.path, "".join(json.dumps(r) + "\n" for r in kept.values()))
+            self._runs, self._spare, self._open_line = kept, spare, False
+        if moved:
+            log.info(
+                "%s: %d record(s) this evaluation did not use moved to %s",
+                self.path,
+                len(moved),
+                self.superseded_path.name,
+            )
+        return len(moved)
+
+
+def _repacked(rec: Mapping[str, Any]) -> dict[str, Any]:
+    """A record with its arrays packed as :func:`_pack` packs them today."""
+    return {f: (_pack(_unpack(v)) if isinstance(v, dict) and "zlib_b64" in v else v) for f, v in rec.items()}
 
 
 class RunStore(JsonlRecords):
@@ -128,11 +211,12 @@ class RunStore(JsonlRecords):
 
     def get(self, key: str, need_detail: bool) -> RunOutcome | None:
         """The recorded run for ``key`` if it completed (and kept its detail when needed)."""
-        rec = self._runs.get(key)
+        rec = self._find(key)
         if rec is None or rec.get("timed_out") or rec.get("error"):
             return None
         if need_detail and not rec.get("detail"):
             return None
+        self._use(key, rec)
         return RunOutcome(
             self.simulator,
             int(rec["seed"]),
@@ -191,9 +275,10 @@ class RepairStore(JsonlRecords):
         """The recorded repair for ``key``, or None."""
         from nca_qd.scoring.jobs import RepairOutcome
 
-        rec = self._runs.get(key)
+        rec = self._find(key)
         if rec is None:
             return None
+        self._use(key, rec)
         hamming = rec.get("hamming")
         layout = _unpack(rec["layout"])
         return RepairOutcome(
