@@ -93,12 +93,7 @@ class PibtStep {
 
 SimResult simulate_pibt(const SimConfig& cfg) {
   validate(cfg);
-  const double cpu0 = thread_cpu_seconds();
-  const auto wall0 = std::chrono::steady_clock::now();
-  const bool limited = cfg.time_limit_s > 0;
-  const auto deadline = limited ? wall0 + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
-                                              std::chrono::duration<double>(cfg.time_limit_s))
-                                : std::chrono::steady_clock::time_point::max();
+  const RunClock clock(cfg.time_limit_s);
   const int N = cfg.n_agents, T = cfg.horizon, h = cfg.replan;
   Grid grid(cfg.rows, cfg.cols, cfg.traversable);
   DistanceCache distances(grid);
@@ -136,7 +131,7 @@ SimResult simulate_pibt(const SimConfig& cfg) {
   std::vector<char> stuck(N);
   int t = 0;
   while (t < T) {
-    if (limited && std::chrono::steady_clock::now() > deadline) {
+    if (clock.expired()) {
       res.timed_out = true;
       break;
     }
@@ -190,19 +185,7 @@ SimResult simulate_pibt(const SimConfig& cfg) {
     }
   }
 
-  res.stop_time = t;
-  res.success = !res.congested && !res.timed_out && t == T;
-  res.throughput = static_cast<double>(res.finished_tasks) / T;
-  res.goal_offsets.push_back(0);
-  for (const auto& log : goal_log) {
-    for (const Goal& g : log) {
-      res.goal_cells.push_back(g.cell);
-      res.goal_dwell.push_back(g.dwell);
-    }
-    res.goal_offsets.push_back(static_cast<int32_t>(res.goal_cells.size()));
-  }
-  res.cpu_seconds = thread_cpu_seconds() - cpu0;
-  res.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
+  finish_result(res, t, T, goal_log, clock);
   return res;
 }
 

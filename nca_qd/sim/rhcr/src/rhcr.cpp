@@ -33,12 +33,7 @@ struct AgentState {
 
 SimResult simulate(const SimConfig& cfg) {
   validate(cfg);
-  const double cpu0 = thread_cpu_seconds();
-  const auto wall0 = std::chrono::steady_clock::now();
-  const bool limited = cfg.time_limit_s > 0;
-  const auto deadline = limited ? wall0 + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
-                                              std::chrono::duration<double>(cfg.time_limit_s))
-                                : std::chrono::steady_clock::time_point::max();
+  const RunClock clock(cfg.time_limit_s);
 
   const int N = cfg.n_agents, T = cfg.horizon, w = cfg.window, h = cfg.replan;
   Grid grid(cfg.rows, cfg.cols, cfg.traversable);
@@ -55,7 +50,7 @@ SimResult simulate(const SimConfig& cfg) {
                                               : 0;
   limits.time_limit_s = cfg.plan_time_limit_s;
   limits.max_expansions = cfg.plan_max_expansions;
-  limits.deadline = deadline;
+  limits.deadline = clock.deadline;
   limits.prioritize_start = cfg.prioritize_start;
   Rng repair_rng(cfg.seed ^ 0x5DEECE66DULL);  // the failed-call repair's own stream
   bool dwell_goals = false;
@@ -82,7 +77,7 @@ SimResult simulate(const SimConfig& cfg) {
   std::vector<int> plan;
   int t = 0;
   while (t < T) {
-    if (limited && std::chrono::steady_clock::now() > deadline) {
+    if (clock.expired()) {
       res.timed_out = true;
       break;
     }
@@ -122,7 +117,7 @@ SimResult simulate(const SimConfig& cfg) {
     res.call_cpu_seconds.push_back(thread_cpu_seconds() - call_cpu0);
     res.call_expansions.push_back(pbs.low_level_expansions() - call_expansions0);
     ++res.replans;
-    if (limited && std::chrono::steady_clock::now() > deadline) {  // the call was cut short
+    if (clock.expired()) {  // the call was cut short
       res.timed_out = true;
       break;
     }
@@ -177,21 +172,9 @@ SimResult simulate(const SimConfig& cfg) {
     }
   }
 
-  res.stop_time = t;
-  res.success = !res.congested && !res.timed_out && t == T;
-  res.throughput = static_cast<double>(res.finished_tasks) / T;
-  res.goal_offsets.push_back(0);
-  for (const auto& log : goal_log) {
-    for (const Goal& g : log) {
-      res.goal_cells.push_back(g.cell);
-      res.goal_dwell.push_back(g.dwell);
-    }
-    res.goal_offsets.push_back(static_cast<int32_t>(res.goal_cells.size()));
-  }
   res.pbs_nodes = pbs.stats().nodes_expanded;
   res.low_level_expansions = pbs.low_level_expansions();
-  res.cpu_seconds = thread_cpu_seconds() - cpu0;
-  res.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
+  finish_result(res, t, T, goal_log, clock);
   return res;
 }
 

@@ -3,12 +3,14 @@
 #pragma once
 
 #include <algorithm>
+#include <chrono>
 #include <numeric>
 #include <random>
 #include <stdexcept>
 #include <vector>
 
 #include "astar.hpp"
+#include "cpu_clock.hpp"
 #include "grid.hpp"
 #include "rhcr.hpp"
 #include "rng.hpp"
@@ -78,6 +80,43 @@ inline std::vector<int> start_cells(const SimConfig& cfg, const Grid& grid, Rng&
     if (!cfg.reference_starts) std::swap(free_cells[a], free_cells[a + rng.below(free_cells.size() - a)]);
   free_cells.resize(cfg.n_agents);
   return free_cells;
+}
+
+// A run's clocks, the same for both planners: CPU and wall time from its start, and the wall
+// deadline of its time limit (none when time_limit_s <= 0).
+struct RunClock {
+  using clock = std::chrono::steady_clock;
+  explicit RunClock(double time_limit_s)
+      : cpu0(thread_cpu_seconds()),
+        wall0(clock::now()),
+        limited(time_limit_s > 0),
+        deadline(limited ? wall0 + std::chrono::duration_cast<clock::duration>(std::chrono::duration<double>(time_limit_s))
+                         : clock::time_point::max()) {}
+  bool expired() const { return limited && clock::now() > deadline; }
+  const double cpu0;
+  const clock::time_point wall0;
+  const bool limited;
+  const clock::time_point deadline;
+};
+
+// The end of a run, the same for both planners: the time it stopped at, success (ran to T, not
+// congested, not timed out), throughput over T, every agent's goals flattened (goal_offsets[a]
+// .. goal_offsets[a + 1] are agent a's, in the order given), and the run's CPU and wall time.
+inline void finish_result(SimResult& res, int t, int T, const std::vector<std::vector<Goal>>& goal_log,
+                          const RunClock& clock) {
+  res.stop_time = t;
+  res.success = !res.congested && !res.timed_out && t == T;
+  res.throughput = static_cast<double>(res.finished_tasks) / T;
+  res.goal_offsets.push_back(0);
+  for (const auto& log : goal_log) {
+    for (const Goal& g : log) {
+      res.goal_cells.push_back(g.cell);
+      res.goal_dwell.push_back(g.dwell);
+    }
+    res.goal_offsets.push_back(static_cast<int32_t>(res.goal_cells.size()));
+  }
+  res.cpu_seconds = thread_cpu_seconds() - clock.cpu0;
+  res.wall_seconds = std::chrono::duration<double>(RunClock::clock::now() - clock.wall0).count();
 }
 
 }  // namespace rhcr
