@@ -146,8 +146,9 @@ RESUME_HINT = "the last checkpoint is intact; resume with resume=<run dir>"
 
 
 def main_guard(body: Callable[[list[str]], int | None], on_interrupt: str = "") -> Callable[[], None]:
-    """Run ``body(argv)``; user errors print one line to stderr and exit 2, Ctrl-C (or
-    SIGTERM) exits 130 with ``on_interrupt`` (what was kept, how to go on) in its line."""
+    """Run ``body(argv)``; user errors (and running out of memory, which a map or agent count too
+    large for the machine causes) print one line to stderr and exit 2, Ctrl-C (or SIGTERM)
+    exits 130 with ``on_interrupt`` (what was kept, how to go on) in its line."""
 
     def wrapped() -> None:
         logging.basicConfig(
@@ -164,6 +165,12 @@ def main_guard(body: Callable[[list[str]], int | None], on_interrupt: str = "") 
             code = body(sys.argv[1:])
         except NcaQdError as exc:
             print(f"error: {exc}", file=sys.stderr)
+            sys.exit(EXIT_USAGE)
+        except MemoryError as exc:  # a map or an agent count beyond this machine: the input's size
+            print(
+                f"error: out of memory ({exc or 'allocation failed'}): ask for a smaller map or fewer agents",
+                file=sys.stderr,
+            )
             sys.exit(EXIT_USAGE)
         except KeyboardInterrupt:
             print(f"interrupted{': ' + on_interrupt if on_interrupt else ''}", file=sys.stderr)
