@@ -1,6 +1,7 @@
 """Repair one layout file with HiGHS and print one JSON line.
 
     python -m experiments.repair domain=warehouse_even layout=in.json out=out.json [render=cmp.png]
+    python -m experiments.repair layout=paper_33x36.json tile=[101,102] n_shelves=2500 out=tiled.json
 
 Prints ``{"status", "hamming", "similarity", "seconds", "valid", ...}``; ``valid`` comes from the
 independent validator (graph search). Exit status 0 with a repaired layout, 1 when the repair
@@ -34,6 +35,24 @@ def domain_default(cfg, key: str, n_rows: int):
     return value
 
 
+def tiled(domain: str, layout, size, path: Path):
+    """``layout`` tiled to the full-map ``size`` [rows, cols] as the evaluation's tiling baseline
+    is (:func:`nca_qd.evaluation.layouts.tile_layout`), after checking both."""
+    from nca_qd.evaluation.layouts import tile_layout
+    from nca_qd.evaluation.records import region_shape
+
+    if (
+        not hasattr(size, "__len__")
+        or len(size) != 2
+        or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size)
+    ):
+        raise NcaQdError(f"tile must be [rows, cols] of positive integers, got {size!r}")
+    get_layout(domain).check_frame(layout, str(path))
+    if min(region_shape(domain, size)) < 1:
+        raise NcaQdError(f"tile={list(size)} leaves no storage region for {domain}")
+    return tile_layout(domain, layout, list(size))
+
+
 def main(argv: list[str]) -> int:
     cfg = compose_config("repair", argv)
     domain = cfg.domain.name
@@ -48,6 +67,8 @@ def main(argv: list[str]) -> int:
     path = Path(cfg.layout)
     mapfile = load_map(path, tiles)
     layout = mapfile.to_array(tiles)
+    if cfg.tile is not None:
+        layout = tiled(domain, layout, cfg.tile, path)
     opts = {
         key: (cfg[key] if cfg[key] is not None else domain_default(cfg, key, layout.shape[0]))
         for key in REPAIR_OPTIONS  # the command line's value, else the domain's repair block

@@ -143,3 +143,29 @@ def test_an_unwritable_output_is_refused_before_the_repair(
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and expect in err
     assert not calls
+
+
+def test_tile_repairs_the_layout_repeated_to_a_larger_map(tmp_path, monkeypatch, capsys):
+    """tile=[R,C]: the paper's tiling baseline (its appendix E) from one command: the storage
+    region (between the two-column workstation frames) repeated from the top left and cropped,
+    the frame added, then repaired at that size."""
+    src = write(tmp_path, GOOD)
+    out = tmp_path / "tiled.json"
+    region = np.array([list(r[2:-2]) for r in GOOD])  # 7 x 5
+    want = np.tile(region, (2, 3))[:14, :12]  # the storage region of a 14 x 16 map
+    n_shelves = int((want == "@").sum())
+    code = run(
+        repair_cli,
+        ["domain=warehouse_even", f"layout={src}", f"out={out}", "tile=[14,16]", f"n_shelves={n_shelves}"],
+        monkeypatch,
+    )
+    assert code == 0
+    line = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    lay = load_map(out, wh.TILES).to_array(wh.TILES)
+    assert lay.shape == (14, 16) and line["valid"] is True
+    assert check(lay, make_rules("warehouse_even", lay.shape, n_shelves=n_shelves)) is None
+    got = np.array([list(r) for r in load_map(out).rows])[:, 2:-2]
+    assert line["hamming"] == int((got != want).sum())  # the frame is not the repair's to change
+    code = run(repair_cli, ["domain=warehouse_even", f"layout={src}", f"out={out}", "tile=[14]"], monkeypatch)
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "tile must be [rows, cols]" in err
