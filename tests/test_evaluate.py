@@ -518,6 +518,27 @@ def test_n_shelves_sets_the_shelf_count_of_its_size_only(tiny_run):
     assert plan.repair_options(plan.s_eval)["n_shelves"] == 24
 
 
+def test_exact_runs_go_to_the_curve_points_named_and_no_others(tiny_run):
+    """sweep.<size>.exact_agents: exact verdicts on a few points of a curve (issue 55 asks for
+    three per curve) without exact runs at every point; null keeps every point exact."""
+    from nca_qd.evaluation.plan import Plan, validated
+    from nca_qd.evaluation.records import EvalLayout
+
+    d = OmegaConf.to_container(compose_config("run", TINY_RUN).domain, resolve=True)
+
+    def exact_at(cmd: list[str]) -> dict[int, int]:
+        e = validated(OmegaConf.to_container(compose_config("evaluate", [f"run_dir={tiny_run}", *cmd])))
+        plan = Plan(e, d, "warehouse_even")
+        lay = EvalLayout("k", "NCA", "nca", "9x14", "train", np.zeros(plan.s_train, np.int32), cell=3)
+        return {r.n_agents: r.exact_runs for r in plan.requests({"k": lay}) if r.purpose == "sweep_train"}
+
+    base = ["sweep.train.agents=[4,6,8]", "exact.sweep_train=2"]
+    assert exact_at(base) == {4: 2, 6: 2, 8: 2}
+    assert exact_at([*base, "sweep.train.exact_agents=[4,8]"]) == {4: 2, 6: 0, 8: 2}
+    with pytest.raises(NcaQdError, match="sweep.train.exact_agents names 5, not a point of the curve"):
+        exact_at([*base, "sweep.train.exact_agents=[5]"])
+
+
 def test_repair_tie_break_comes_from_the_run_unless_this_command_overrides_it(tiny_run):
     """A run repaired with tie_break=none is evaluated with none (its own repair); the
     command's repair.tie_break=random overrides it at every size."""

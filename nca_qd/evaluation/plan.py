@@ -171,6 +171,10 @@ class Plan:
         self.sweep_eval = agent_range(
             e["sweep"]["eval"], self.n_eval, get_layout(name).eval_agent_step, "sweep.eval"
         )
+        self.sweep_exact = {
+            which: _exact_points(e["sweep"][which].get("exact_agents"), points, f"sweep.{which}")
+            for which, points in (("train", self.sweep_train), ("eval", self.sweep_eval))
+        }
         sz = e["sizes"]
         extra = [tuple(positive_ints(s, "sizes.shapes")) for s in sz["shapes"]]
         for s in extra:
@@ -253,6 +257,12 @@ class Plan:
         opts.update(self.repair_overrides)
         return opts
 
+    def _sweep_exact(self, which: str, n: int) -> int:
+        """Exact runs at agent count ``n`` of the ``which`` curve: exact.sweep_<which> where
+        sweep.<which>.exact_agents names ``n`` (or is null), else none."""
+        at = self.sweep_exact[which]
+        return int(self.e["exact"][f"sweep_{which}"]) if at is None or n in at else 0
+
     def requests(self, layouts: Mapping[str, EvalLayout]) -> list[Request]:
         e, ex = self.e, self.e["exact"]
         out: list[Request] = []
@@ -263,13 +273,13 @@ class Plan:
             if shape == self.s_train:
                 out.append(Request("main_train", key, self.n_train, e["runs"]["train"], ex["train"], True))
                 out += [
-                    Request("sweep_train", key, n, e["sweep"]["train"]["runs"], ex["sweep_train"])
+                    Request("sweep_train", key, n, e["sweep"]["train"]["runs"], self._sweep_exact("train", n))
                     for n in self.sweep_train
                 ]
             if shape == self.s_eval and self.scales:
                 out.append(Request("main_eval", key, self.n_eval, e["runs"]["eval"], ex["eval"], True))
                 out += [
-                    Request("sweep_eval", key, n, e["sweep"]["eval"]["runs"], ex["sweep_eval"])
+                    Request("sweep_eval", key, n, e["sweep"]["eval"]["runs"], self._sweep_exact("eval", n))
                     for n in self.sweep_eval
                 ]
             if shape in self.curve_agents and lay.kind != "tiling":
@@ -278,3 +288,16 @@ class Plan:
                     for n in self.curve_agents[shape]
                 ]
         return out
+
+
+def _exact_points(spec: Any, points: Sequence[int], where: str) -> set[int] | None:
+    """The agent counts of a curve named by ``<where>.exact_agents`` (None: all of them); each
+    must be a point of the curve."""
+    if spec is None:
+        return None
+    at = set(positive_ints(spec, f"{where}.exact_agents"))
+    off = sorted(at - set(points))
+    if off:
+        curve = f"{points[0]} … {points[-1]} agents" if points else "the curve is off"
+        raise NcaQdError(f"{where}.exact_agents names {off[0]}, not a point of the curve ({curve})")
+    return at
