@@ -41,8 +41,10 @@ def render_files(
     paths: Sequence[str | Path],
     titles: Sequence[str] | None = None,
     domain: str | None = None,
+    crop: Sequence[int] | None = None,
 ) -> None:
-    """Draw the layouts of ``paths`` side by side into the PNG ``out``."""
+    """Draw the layouts of ``paths`` side by side into the PNG ``out``; ``crop`` [rows, cols]:
+    only their top-left corner of that size (a 140x500 map drawn whole is too thin to read)."""
     from nca_qd.viz import render_layouts
 
     maps = [load_map(p) for p in paths]
@@ -51,7 +53,21 @@ def render_files(
     # load_map with the alphabet names the file and the character when a tile does not fit.
     layouts = [load_map(p, tiles).to_array(tiles) for p in paths]
     titles = list(titles) if titles is not None else [m.name for m in maps]
+    if crop is not None:
+        r, c = _crop_size(crop)
+        titles = [
+            f"{t} (top-left {min(r, a.shape[0])}x{min(c, a.shape[1])} of {a.shape[0]}x{a.shape[1]})"
+            for t, a in zip(titles, layouts)
+        ]
+        layouts = [a[:r, :c] for a in layouts]
     render_layouts(out, layouts, tiles, palette, titles)
+
+
+def _crop_size(crop) -> tuple[int, int]:
+    vals = list(crop) if hasattr(crop, "__len__") else []
+    if len(vals) != 2 or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in vals):
+        raise NcaQdError(f"crop must be [rows, cols] of positive integers, got {crop!r}")
+    return int(vals[0]), int(vals[1])
 
 
 def render_elites(out: str | Path, run_dir: str | Path, elites, size: str = "train") -> None:
@@ -112,7 +128,7 @@ def main(argv: list[str]) -> int:
     check_writable(cfg.out, "out")
     paths = [cfg.layout] + ([cfg.compare] if cfg.compare else [])
     domain = cfg.domain.name if cfg.get("domain") is not None else None
-    render_files(cfg.out, paths, domain=domain)
+    render_files(cfg.out, paths, domain=domain, crop=cfg.get("crop"))
     print(cfg.out)
     return 0
 

@@ -169,3 +169,27 @@ def test_tile_repairs_the_layout_repeated_to_a_larger_map(tmp_path, monkeypatch,
     code = run(repair_cli, ["domain=warehouse_even", f"layout={src}", f"out={out}", "tile=[14]"], monkeypatch)
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and "tile must be [rows, cols]" in err
+
+
+def test_render_crops_a_wide_layout_to_its_corner(tmp_path, monkeypatch, capsys):
+    import nca_qd.viz as viz
+
+    src = write(tmp_path, GOOD)
+    drawn = []
+    real = viz.render_layouts
+
+    def spy(out, layouts, tiles, palette, titles):
+        drawn.append(([a.copy() for a in layouts], list(titles)))
+        return real(out, layouts, tiles, palette, titles)
+
+    monkeypatch.setattr(viz, "render_layouts", spy)
+    corner = tmp_path / "corner.png"
+    assert run(render_cli, [f"layout={src}", f"out={corner}", "crop=[3,4]"], monkeypatch) == 0
+    (lay,), (title,) = drawn[0]
+    want = np.array([[wh.TILES.index(ch) for ch in row[:4]] for row in GOOD[:3]])
+    np.testing.assert_array_equal(lay, want)
+    assert "top-left 3x4 of 7x9" in title and corner.read_bytes()[:4] == b"\x89PNG"
+    capsys.readouterr()
+    assert run(render_cli, [f"layout={src}", f"out={corner}", "crop=[3]"], monkeypatch) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "crop must be [rows, cols]" in err
