@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from nca_qd.paper import RUNTIME, SCALING
+from nca_qd.paper import RUNTIME, SCALING, TILING
 
 SUMMARY = Path("evaluation") / "summary.csv"
 WHICH = ("train", "eval")  # S, S_eval
@@ -114,7 +114,7 @@ def _fmt_pair(pair: tuple[float, float] | None, digits: int = 2) -> str:
 
 
 def _paper_scaling(domain: str, label: str) -> str:
-    p = SCALING.get((domain, label))
+    p = SCALING.get((domain, label)) or TILING.get((domain, label))
     if p is None:
         return "—"
     parts = []
@@ -135,7 +135,7 @@ def scaling_rows(arms: Sequence[Arm]) -> list[dict[str, Any]]:
             if kind == "tiling" and not cells["eval"].get("runs"):
                 continue
             out.append({"domain": arm.domain, "layout": label, "seeds": seeds, **_cells(cells)})
-            out[-1]["paper"] = _paper_scaling(arm.domain, arm.algorithm) if kind == "nca" else "—"
+            out[-1]["paper"] = _paper_scaling(arm.domain, label)
         if arm.domain not in humans_done:
             rows = arm.seeds[seeds[0]]
             cells = {w: scaling_cell([_row(rows, "human", w)]) for w in WHICH}
