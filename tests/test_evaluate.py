@@ -753,6 +753,32 @@ def test_an_evaluation_with_the_pibt_planner_labels_its_exact_runs_pibt(evaluate
     assert "rhcr" in {r["simulator"] for r in read(out / "runs.csv")}
 
 
+def test_the_tiling_baseline_tiles_the_repaired_or_the_generated_s_layout(evaluated):
+    """baselines.tiling_from: the default tiles the repaired S layout; unrepaired tiles what the
+    NCA generated at S (the paper's 2,500 shelves at S_eval are its unrepaired tiling's count).
+    Checked against the storage regions of the S layouts the evaluation saved, tiled here."""
+    out, _ = evaluated
+    run_dir = out.parent / "run"
+    out3 = out.parent / "evaluation_tiling_unrepaired"
+    args = [f"run_dir={run_dir}", f"out={out3}", *FAST, "baselines.tiling_from=unrepaired"]
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert evaluate_cli.main(args) == 0
+
+    def region(path: Path) -> np.ndarray:
+        return np.array([list(r[2:-2]) for r in load_map(path).rows])  # storage: between 2-column frames
+
+    for folder, source in ((out, "nca_c3_9x14.json"), (out3, "nca_c3_9x14_unrepaired.json")):
+        small = region(folder / "layouts" / source)
+        tiled = region(folder / "layouts" / "tiling_c3_13x18_unrepaired.json")
+        reps = (-(-tiled.shape[0] // small.shape[0]), -(-tiled.shape[1] // small.shape[1]))
+        np.testing.assert_array_equal(tiled, np.tile(small, reps)[: tiled.shape[0], : tiled.shape[1]])
+    labels = {r["layout"] for r in read(out3 / "layouts.csv") if r["kind"] == "tiling"}
+    assert labels == {"tiling (cell 3, unrepaired S)"}
+    assert not np.array_equal(
+        region(out / "layouts" / "nca_c3_9x14.json"), region(out / "layouts" / "nca_c3_9x14_unrepaired.json")
+    )
+
+
 def test_records_pack_narrow_and_an_evaluation_prunes_what_it_did_not_use(tmp_path):
     import base64
     import json

@@ -298,17 +298,22 @@ def build_layouts(
     ]
     if plan.tiling_baseline and plan.scales and plan.s_eval != plan.s_train:
         best = layouts[f"{prefix}_c{int(cells_idx[0])}@{size_str(plan.s_train)}"]
-        if best.layout is None:
-            log.warning("no tiling baseline: the best generator's S layout was not repaired")
+        raw = plan.tiling_from == "unrepaired"
+        source = best.unrepaired if raw else best.layout
+        if source is None:
+            log.warning(
+                "no tiling baseline: the best generator's S layout was not %s",
+                "generated" if raw else "repaired",
+            )
         else:
             tiled = EvalLayout(
                 f"tiling_c{best.cell}@{size_str(plan.s_eval)}",
-                f"tiling (cell {best.cell})",
+                f"tiling (cell {best.cell}{', unrepaired S' if raw else ''})",
                 "tiling",
                 size_str(plan.s_eval),
                 "eval",
                 None,
-                tile_layout(name, best.layout, plan.s_eval),
+                tile_layout(name, source, plan.s_eval),
                 best.cell,
             )
             layouts[tiled.key] = tiled

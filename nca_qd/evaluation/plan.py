@@ -148,6 +148,11 @@ class Plan:
         self.elites = e["elites"]  # a count, or a list of cells
         self.human_baseline = bool(e["baselines"]["human"])
         self.tiling_baseline = bool(e["baselines"]["tiling"])
+        self.tiling_from = str(e["baselines"].get("tiling_from", "repaired"))
+        if self.tiling_from not in ("repaired", "unrepaired"):
+            raise NcaQdError(
+                f"baselines.tiling_from must be repaired or unrepaired, got {self.tiling_from!r}"
+            )
         sc = e["screen"]
         self.screen = ScreenSettings(
             str(sc["where"]),
