@@ -12,6 +12,7 @@ import signal
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
@@ -136,6 +137,15 @@ def take_domain(argv: list[str]) -> tuple[list[str], str | None]:
         else:
             rest.append(arg)
     return rest, domain
+
+
+def size_pair(value: Any, what: str) -> tuple[int, int]:
+    """A command line's ``[rows, cols]`` (``tile=[101,102]``, ``crop=[70,140]``) as two positive
+    integers; anything else is a usage error naming ``what``."""
+    vals = list(value) if hasattr(value, "__len__") and not isinstance(value, str) else []
+    if len(vals) != 2 or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in vals):
+        raise NcaQdError(f"{what} must be [rows, cols] of positive integers, got {value!r}")
+    return int(vals[0]), int(vals[1])
 
 
 def _raise_interrupt(signum, frame) -> None:

@@ -18,7 +18,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
-from experiments.cli import check_writable, compose_config, main_guard
+from experiments.cli import check_writable, compose_config, main_guard, size_pair
 from nca_qd.domains import domain_class
 from nca_qd.errors import NcaQdError
 from nca_qd.io import load_map
@@ -54,20 +54,13 @@ def render_files(
     layouts = [load_map(p, tiles).to_array(tiles) for p in paths]
     titles = list(titles) if titles is not None else [m.name for m in maps]
     if crop is not None:
-        r, c = _crop_size(crop)
+        r, c = size_pair(crop, "crop")
         titles = [
             f"{t} (top-left {min(r, a.shape[0])}x{min(c, a.shape[1])} of {a.shape[0]}x{a.shape[1]})"
             for t, a in zip(titles, layouts)
         ]
         layouts = [a[:r, :c] for a in layouts]
     render_layouts(out, layouts, tiles, palette, titles)
-
-
-def _crop_size(crop) -> tuple[int, int]:
-    vals = list(crop) if hasattr(crop, "__len__") else []
-    if len(vals) != 2 or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in vals):
-        raise NcaQdError(f"crop must be [rows, cols] of positive integers, got {crop!r}")
-    return int(vals[0]), int(vals[1])
 
 
 def render_elites(out: str | Path, run_dir: str | Path, elites, size: str = "train") -> None:

@@ -14,7 +14,7 @@ import json
 import logging
 from pathlib import Path
 
-from experiments.cli import check_writable, compose_config, main_guard
+from experiments.cli import check_writable, compose_config, main_guard, size_pair
 from nca_qd.errors import NcaQdError
 from nca_qd.io import MapFile, array_to_rows, load_map, save_map
 from nca_qd.layouts import LAYOUTS, get_layout
@@ -41,12 +41,7 @@ def tiled(domain: str, layout, size, path: Path):
     from nca_qd.evaluation.layouts import tile_layout
     from nca_qd.evaluation.records import region_shape
 
-    if (
-        not hasattr(size, "__len__")
-        or len(size) != 2
-        or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size)
-    ):
-        raise NcaQdError(f"tile must be [rows, cols] of positive integers, got {size!r}")
+    size = size_pair(size, "tile")
     get_layout(domain).check_frame(layout, str(path))
     if min(region_shape(domain, size)) < 1:
         raise NcaQdError(f"tile={list(size)} leaves no storage region for {domain}")
