@@ -11,7 +11,7 @@
     repaired with ``method=full`` (time limit ``--full-limit``), Hamming compared.
 Prints one table; all repairs single-threaded.
 
-    .venv/bin/python -m benchmarks.bench_repair --elites 30 [--runs results/warehouse_even_a5,...]
+    .venv/bin/python -m benchmarks.bench_repair --elites 30 [--runs results/<run>,...]
 
 instead repairs the NCA layouts (at S, C = 50) of ``--elites`` elites of each shipped search
 (drawn with ``--seed``) with the domain's repair settings at S under time limits
@@ -82,7 +82,7 @@ def run_set(label: str, domain: str, layouts, rows: list, **opts) -> list:
     return results
 
 
-RUNS = "results/warehouse_even_a5,results/warehouse_uneven_a5"
+RUNS = "results/warehouse_even_qd/cma_mae_a5_s0,results/warehouse_uneven_a5"
 
 
 def elites(runs: str, n: int, seed: int, windows: int | None = None) -> None:

@@ -29,7 +29,7 @@ all flowed, none of them in this set; a congested run counts 1.3 x its own throu
 The search's own layouts (``BENCH_SCREEN_PARTS=search``, not in the default set: a few
 minutes of screening): ``BENCH_SCREEN_SEARCH_N`` (default 300) distinct repaired layouts drawn at random
 from a warehouse (even) search's evaluation memo (``BENCH_SCREEN_MEMO``, default
-``results/warehouse_even_a5/eval_memo.npz``), whose exact RHCR throughputs (5 seeds, T=1,000,
+``results/warehouse_even_qd/cma_mae_a5_s0/eval_memo.npz``), whose exact RHCR throughputs (5 seeds, T=1,000,
 200 agents) the memo holds. Screened with 5 seeds; reports the Spearman of RHCR's mean against
 the screen's, the free-flow estimate's and free flow alone, and how many of RHCR's top 10 %
 each ranks in its own top 10 %. The estimate's efficiency is fitted on one half of the layouts
@@ -228,9 +228,11 @@ def fidelity() -> None:
 # uneven traffic's threshold came from iterations 1-28, manufacturing's from 1-7; the warehouse
 # (even) threshold and congested share came from the synthetic seed-0 set. The last is where
 # the running searches stood when the figures in docs/benchmarks.md were measured, so that the
-# memos' later iterations do not change the draw.
+# memos' later iterations do not change the draw. (The figures of 2026-11-27 drew their even
+# layouts from results/warehouse_even_a5, which left the tree on 2026-11-29 for the comparison's
+# arm: `git checkout ee3c4c2 -- results/warehouse_even_a5` brings it back.)
 MIXED_SOURCES = (
-    ("warehouse_even", "results/warehouse_even_a5/eval_memo.npz", 1, 200),
+    ("warehouse_even", "results/warehouse_even_qd/cma_mae_a5_s0/eval_memo.npz", 1, 200),
     ("warehouse_uneven", "results/warehouse_uneven_a5/eval_memo.npz", 29, 95),
     ("manufacturing", "results/manufacturing_a5/eval_memo.npz", 8, 24),
 )
@@ -375,7 +377,7 @@ def search_layouts() -> None:
     from nca_qd.scoring.keys import layout_key
     from nca_qd.sim.screen import simulate_scenarios
 
-    path = Path(os.environ.get("BENCH_SCREEN_MEMO", "results/warehouse_even_a5/eval_memo.npz"))
+    path = Path(os.environ.get("BENCH_SCREEN_MEMO", "results/warehouse_even_qd/cma_mae_a5_s0/eval_memo.npz"))
     if not path.is_file():
         print(f"search: no memo at {path} (set BENCH_SCREEN_MEMO)")
         return

@@ -9,7 +9,8 @@ the paper's cluster runs cost hundreds of CPU-hours).
     python -m benchmarks.bench_search [--domain warehouse_even] [--iters 4]
     python -m benchmarks.bench_search --run-dir /path/to/run     # summarise a run's metrics.csv
     python -m benchmarks.bench_search --run-dir /path/to/run --iterations 12-40
-    python -m benchmarks.bench_search --replay-early-stop results/warehouse_even_a5  # replayed
+    python -m benchmarks.bench_search --replay-early-stop results/warehouse_even_qd/cma_mae_a5_s0  # replayed
+    python -m benchmarks.bench_search --exact-floor results/warehouse_even_qd/cma_mae_a5_s0
 
 The first iteration includes JAX compilation (NCA, screen) and the worker pool's start and is
 reported apart. Early iterations send most layouts to exact RHCR (the result archive is empty);
@@ -124,6 +125,64 @@ def replay_early_stop(run_dirs: str, deltas=(0.02, 0.05, 0.1)) -> None:
             )
 
 
+def exact_floor(run_dir: str, per_bucket: int = 6, buckets: int = 8, seed: int = 0) -> None:
+    """The exact stage's CPU over a finished search, and the least wall time it needs on k cores.
+
+    Draws ``per_bucket`` of the memo's exactly-scored layouts from each of ``buckets`` equal
+    spans of iterations, runs each once more single-threaded at the search's exact settings
+    (``eval.*``: node budget, T, agents; a seed from its key, since a batch's seeds are not
+    stored) and reads the planner's thread CPU seconds, which a busy machine barely changes.
+    Each span's mean CPU per run times the exact runs the search made in it (``metrics.csv``)
+    is the protocol's exact CPU; divided by the cores, the wall time no scheduling can beat
+    while every layout that is not skipped gets N_e exact runs."""
+    import numpy as np
+    from omegaconf import OmegaConf
+
+    from nca_qd.io import array_to_rows
+    from nca_qd.layouts import get_layout
+    from nca_qd.run_dir import load_run_config
+    from nca_qd.scoring.jobs import ExactSettings, exact_job
+    from nca_qd.scoring.keys import layout_key
+    from nca_qd.scoring.settings import ScoringConfig
+    from nca_qd.sim.rhcr import REPLAN, WINDOW
+
+    run = Path(run_dir)
+    cfg = load_run_config(run)
+    memo = np.load(run / "eval_memo.npz")
+    scoring = ScoringConfig.from_cfg(OmegaConf.to_container(cfg.get("eval", {}), resolve=True))
+    sim = cfg.domain.simulation
+    T, n_agents = int(sim.T), int(cfg.domain.n_agents.train)
+    settings = ExactSettings(T, None, WINDOW, REPLAN, dict(scoring.planner or {}))
+    tiles = get_layout(cfg.domain.name, "domain").tiles
+    by_key = {layout_key(lay): i for i, lay in enumerate(memo["repair_layouts"])}
+    with open(run / "metrics.csv") as fh:
+        metrics = list(csv.DictReader(fh))
+    last = int(metrics[-1]["iteration"])
+    edges = np.linspace(0, last, buckets + 1).round().astype(int)
+    its = memo["exact_iteration"]
+    rng = np.random.default_rng(seed)
+    total_cpu, total_runs = 0.0, 0
+    print(f"== exact-stage floor of {run_dir}: {T} steps, {n_agents} agents, {dict(settings.planner)}")
+    print("iterations | sampled runs | CPU-s per run (mean, max) | runs made | exact CPU-h")
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        pool = np.flatnonzero((its > lo) & (its <= hi))
+        picks = rng.choice(pool, size=min(per_bucket, len(pool)), replace=False)
+        cpu = []
+        for j in picks:
+            key = bytes(memo["exact_keys"][j])
+            rows = array_to_rows(memo["repair_layouts"][by_key[key]], tiles)
+            out = exact_job(rows, cfg.domain.name, n_agents, int.from_bytes(key[:4], "big") % 2**31, settings)
+            cpu.append(out.cpu_seconds)
+        made = sum(int(r["exact_runs"]) for r in metrics if lo < int(r["iteration"]) <= hi)
+        span_cpu = float(np.mean(cpu)) * made
+        total_cpu, total_runs = total_cpu + span_cpu, total_runs + made
+        per_run = f"{np.mean(cpu):.2f}, {np.max(cpu):.2f}"
+        print(f"{lo + 1}-{hi} | {len(cpu)} | {per_run} | {made} | {span_cpu / 3600:.2f}")
+    print(f"whole search: {total_runs} exact runs, {total_cpu / 3600:.2f} CPU-h of exact RHCR")
+    for cores in (2, 4, 8, 16):
+        print(f"  on {cores} cores at best: {total_cpu / cores / 3600:.2f} h for the exact stage alone")
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--domain", default="warehouse_even")
@@ -142,7 +201,16 @@ def main(argv: list[str] | None = None) -> None:
         metavar="RUN[,RUN]",
         help="finished searches: what stopping exact runs after the first would save and lose",
     )
+    ap.add_argument(
+        "--exact-floor",
+        default=None,
+        metavar="RUN",
+        help="a finished search: its exact stage's CPU-hours, re-measured on a sample of its layouts",
+    )
     args = ap.parse_args(argv if argv is not None else [])
+    if args.exact_floor:
+        exact_floor(args.exact_floor)
+        return
     if args.replay_early_stop:
         replay_early_stop(args.replay_early_stop)
         return

@@ -28,12 +28,12 @@ M64 = (1 << 64) - 1
 ROOT = Path(__file__).resolve().parents[1]
 MAPS = {  # name: (layout file, scenario)
     "warehouse_even_human": (
-        "results/warehouse_even_a5/evaluation/layouts/human_33x36.json",
+        "results/warehouse_even_qd/cma_mae_a5_s0/evaluation/layouts/human_33x36.json",
         "warehouse_even",
     ),
     "manufacturing_human": ("results/manufacturing_a5/evaluation/layouts/human_33x36.json", "manufacturing"),
-    "warehouse_even_nca5041": (
-        "results/warehouse_even_a5/evaluation/layouts/nca_c5041_33x36.json",
+    "warehouse_even_nca4472": (
+        "results/warehouse_even_qd/cma_mae_a5_s0/evaluation/layouts/nca_c4472_33x36.json",
         "warehouse_even",
     ),
     "warehouse_uneven_nca5930": (

@@ -1,7 +1,7 @@
 """Export a layout for other multi-agent path finding tools (MovingAI, League of Robot Runners).
 
     python -m experiments.export layout=map.json format=movingai out=exports/
-    python -m experiments.export run=results/warehouse_even_a5 rows=101 cols=102 format=lorr out=exports/
+    python -m experiments.export run=results/manufacturing_a5 rows=101 cols=102 format=lorr out=exports/
     python -m experiments.export human=true domain=warehouse_even rows=140 cols=500 format=json out=maps/
 
 Writes the format's files into ``out`` (:mod:`nca_qd.export` describes them) and prints one JSON

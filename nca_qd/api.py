@@ -1,7 +1,7 @@
 """A trained generator in five lines: load one from a run directory, grow a layout at any size.
 
     from nca_qd import load_generator
-    g = load_generator("results/warehouse_even_a5")               # the result archive's best
+    g = load_generator("results/warehouse_even_qd/cma_mae_a5_s0")  # the result archive's best
     layout = g.layout(rows=101, cols=102)                          # whole map, repaired
     print("\\n".join(g.rows(layout)))                               # the paper's tile letters
 

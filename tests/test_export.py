@@ -142,7 +142,7 @@ def test_a_shipped_generator_in_five_lines():
     from nca_qd.repair import make_rules
     from nca_qd.repair.validator import check
 
-    run = REPO / "results" / "warehouse_even_a5"
+    run = REPO / "results" / "warehouse_even_qd" / "cma_mae_a5_s0"
     g = load_generator(run)
     layout = g.layout()
     assert layout.shape == (33, 36) and check(layout, make_rules("warehouse_even", layout.shape)) is None

@@ -25,7 +25,7 @@ def test_the_notebook_explores_a_dsage_run(tmp_path, monkeypatch):
 
 
 def test_the_notebook_opens_the_shipped_archive_by_default(monkeypatch):
-    """Started in notebooks/ with no run named, it explores results/warehouse_even_a5 (its
+    """Started in notebooks/ with no run named, it explores results/warehouse_even_qd/cma_mae_a5_s0 (its
     portable snapshot: the repository ships no full checkpoint)."""
     monkeypatch.delenv("NCA_QD_RUN_DIR", raising=False)
     nb = _execute(None, NOTEBOOK.parent, monkeypatch, 4)

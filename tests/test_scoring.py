@@ -767,9 +767,6 @@ def test_a_run_saved_before_a_setting_is_read_through_the_migration(tmp_path):
     kept = ScoringConfig.from_cfg(load_run_config(new).eval)
     assert kept.screen_estimate == "free_flow" and kept.screen_congested == (1.0, 2.0, 3.0)
     assert "eval" not in load_run_config(maze)
-    # the shipped even search predates both keys and ran with the scaled screen
-    shipped = load_run_config(Path(__file__).parents[1] / "results/warehouse_even_a5")
-    assert ScoringConfig.from_cfg(shipped.eval).screen_estimate == "scaled"
 
 
 def _scorer(extra):
