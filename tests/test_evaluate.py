@@ -735,13 +735,20 @@ def test_the_repair_record_keys_on_every_input_and_keeps_only_found_layouts(tmp_
     assert again.get("failed") is None  # a repair that found nothing is tried again
 
 
-def test_an_evaluation_with_the_pibt_planner_labels_its_exact_runs_pibt(evaluated):
+def _evaluate_again(evaluated, name: str, *overrides: str) -> Path:
+    """The fixture's run evaluated once more into ``name`` beside its evaluation, with the fast
+    settings and ``overrides``."""
     out, _ = evaluated
-    run_dir = out.parent / "run"
-    out2 = out.parent / "evaluation_pibt"
-    args = [f"run_dir={run_dir}", f"out={out2}", *FAST, "exact.planner=pibt"]
+    again = out.parent / name
+    args = [f"run_dir={out.parent / 'run'}", f"out={again}", *FAST, *overrides]
     with contextlib.redirect_stdout(io.StringIO()):
         assert evaluate_cli.main(args) == 0
+    return again
+
+
+def test_an_evaluation_with_the_pibt_planner_labels_its_exact_runs_pibt(evaluated):
+    out, _ = evaluated
+    out2 = _evaluate_again(evaluated, "evaluation_pibt", "exact.planner=pibt")
     runs = read(out2 / "runs.csv")
     exact = [r for r in runs if r["simulator"] != "screen"]
     assert exact and {r["simulator"] for r in exact} == {"pibt"}
@@ -758,11 +765,7 @@ def test_the_tiling_baseline_tiles_the_repaired_or_the_generated_s_layout(evalua
     NCA generated at S (the paper's 2,500 shelves at S_eval are its unrepaired tiling's count).
     Checked against the storage regions of the S layouts the evaluation saved, tiled here."""
     out, _ = evaluated
-    run_dir = out.parent / "run"
-    out3 = out.parent / "evaluation_tiling_unrepaired"
-    args = [f"run_dir={run_dir}", f"out={out3}", *FAST, "baselines.tiling_from=unrepaired"]
-    with contextlib.redirect_stdout(io.StringIO()):
-        assert evaluate_cli.main(args) == 0
+    out3 = _evaluate_again(evaluated, "evaluation_tiling_unrepaired", "baselines.tiling_from=unrepaired")
 
     def region(path: Path) -> np.ndarray:
         return np.array([list(r[2:-2]) for r in load_map(path).rows])  # storage: between 2-column frames
