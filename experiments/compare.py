@@ -3,6 +3,7 @@ appendix.
 
     python -m experiments.compare runs=[runs/maze_cma_mae_s0,runs/maze_dsage_s0,...] out=cmp/
     python -m experiments.compare runs=results/compare_maze        # every run below a folder
+    python -m experiments.compare runs=results/warehouse_even_qd out=results name=warehouse_even_comparison
 
 Runs are grouped by domain (with its measures) and algorithm; each group's final QD-score and
 coverage are reported as mean ± standard error over its runs (``comparison.md``, ``comparison.csv``)
@@ -28,7 +29,7 @@ def main(argv: list[str]) -> int:
         raise NcaQdError("give runs=<run dir or folder> or runs=[dir,dir,...]")
     paths = list(runs) if isinstance(runs, (list, ListConfig)) else [runs]
     out = cfg.out or (paths[0] if len(paths) == 1 else "compare")
-    table, files = compare(paths, out)
+    table, files = compare(paths, out, str(cfg.name))
     print(table, end="")
     for f in files:
         print(f)

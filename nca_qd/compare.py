@@ -211,11 +211,13 @@ def plot_curves(path: Path, summaries: Sequence[GroupSummary], points: int = 200
     save_figure(fig, path)
 
 
-def compare(paths: Iterable[str | Path], out: str | Path) -> tuple[str, list[Path]]:
-    """Aggregate the runs at ``paths`` into ``out``: ``comparison.md``, ``comparison.csv`` and
-    ``comparison.png``; where runs hold an evaluation, the paper's tables 2, 3 and 5 too
-    (:mod:`nca_qd.compare_evaluation`, ``comparison_evaluation.csv``). Returns the Markdown and
+def compare(paths: Iterable[str | Path], out: str | Path, name: str = "comparison") -> tuple[str, list[Path]]:
+    """Aggregate the runs at ``paths`` into ``out``: ``<name>.md``, ``<name>.csv`` and
+    ``<name>.png``; where runs hold an evaluation, the paper's tables 2, 3 and 5 too
+    (:mod:`nca_qd.compare_evaluation`, ``<name>_evaluation.csv``). Returns the Markdown and
     the files written."""
+    if not name or Path(name).name != name or name.startswith("."):
+        raise NcaQdError(f"name must be a plain file name stem (no folders), got {name!r}")
     curves = [read_run(p) for p in find_runs(paths)]
     summaries = summarise(curves)
     out = Path(out)
@@ -224,13 +226,13 @@ def compare(paths: Iterable[str | Path], out: str | Path) -> tuple[str, list[Pat
     from nca_qd.compare_evaluation import read_arms, tables_markdown, write_scaling_csv
     from nca_qd.io import atomic_write_text
 
-    files = [out / "comparison.md", out / "comparison.csv", out / "comparison.png"]
+    files = [out / f"{name}.md", out / f"{name}.csv", out / f"{name}.png"]
     arms = read_arms([(c.path, c.group[1], c.seed) for c in curves])
     table += tables_markdown(arms)
     atomic_write_text(files[0], table)
     write_csv(files[1], summaries)
     plot_curves(files[2], summaries)
     if arms:
-        files.append(out / "comparison_evaluation.csv")
+        files.append(out / f"{name}_evaluation.csv")
         write_scaling_csv(files[-1], arms)
     return table, files

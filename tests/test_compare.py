@@ -52,6 +52,9 @@ def test_a_folder_without_runs_is_one_clear_error(tmp_path):
         compare([tmp_path], tmp_path / "out")
     with pytest.raises(NcaQdError, match="does not exist"):
         compare([tmp_path / "missing"], tmp_path / "out")
+    for bad in ("sub/table", "", ".hidden"):
+        with pytest.raises(NcaQdError, match="name must be a plain file name stem"):
+            compare([tmp_path], tmp_path / "out", name=bad)
 
 
 def test_arms_that_differ_in_alpha_are_not_pooled(tmp_path):
@@ -121,8 +124,10 @@ def test_arms_with_an_evaluation_get_the_papers_tables_2_and_3(tmp_path):
     run(tmp_path / "s1", 1, 5, 0.7, 15.0)
     run(tmp_path / "a0", 0, 0, 0.0, "")
     run(tmp_path / "s2", 2, 5, 0.0, "", evaluated=False)  # no evaluation: QD table only
-    table, files = compare([tmp_path], tmp_path / "out")
-    assert (tmp_path / "out" / "comparison_evaluation.csv") in files
+    table, files = compare([tmp_path], tmp_path / "out", name="warehouse_even_comparison")
+    names = {f.name for f in files}
+    assert names == {f"warehouse_even_comparison{s}" for s in (".md", ".csv", ".png", "_evaluation.csv")}
+    assert all(f.is_file() for f in files) and not (tmp_path / "out" / "comparison.md").exists()
     scaling, runtime_part = table.split("## Generation and repair")
     rows = {
         line.split(" | ")[1]: line for line in scaling.splitlines() if line.startswith("| warehouse_even | ")
