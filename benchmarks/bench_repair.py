@@ -24,6 +24,14 @@ it): per run and mode the median / mean / max seconds, how many are proven optim
 
 repairs the 5 best elites of each run at S_eval (C_eval) with the evaluation's time-limited
 neighbourhood repair and with the work-limited hybrid, one line per layout and mode.
+
+    .venv/bin/python -m benchmarks.bench_repair --probe 7402,7408 --runs results/<run> [--probe-s 300]
+    .venv/bin/python -m benchmarks.bench_repair --probe 4616 --probe-size eval --runs results/manufacturing_a5
+
+where a repair's gap lies (issue 54): at S, the default repair of each named cell's NCA layout,
+then the whole map's MILP warm-started from its layout for ``--probe-s`` seconds (does the
+incumbent fall or the bound rise?); at S_eval, the whole map's LP relaxation from the
+neighbourhood's layout by primal simplex and by interior point (seconds, iterations, bound).
 """
 
 from __future__ import annotations
@@ -163,6 +171,82 @@ def seval(runs: str, n: int, windows: int = 0) -> None:
                 )
 
 
+def probe(run: str, cells: list[int], seconds: float, size: str) -> None:
+    """Where the gap of each cell's repair lies (module docstring, ``--probe``)."""
+    import dataclasses
+
+    from experiments.cli import compose_config
+    from nca_qd.domains import make_domain
+    from nca_qd.evaluation.layouts import load_run
+    from nca_qd.pipeline import generate, make_generator
+    from nca_qd.repair import _greedy_for, tie_costs
+    from nca_qd.repair.milp import solve_window
+    from nca_qd.repair.neighbourhood import repair_neighbourhood
+    from nca_qd.scoring.jobs import repair_options
+
+    cfg, archive = load_run(run)
+    name = cfg["domain"]["name"]
+    dom = make_domain(cfg["domain"])
+    gen = make_generator(dom)
+    opts = repair_options(compose_config("run", [f"domain={name}"]).domain, size)
+    genotypes = np.asarray(archive["genotypes"])
+    print("cell | size | what | status | seconds | distance | bound | detail")
+    for cell in cells:
+        lay = np.asarray(dom.assemble(generate(dom, gen, genotypes[cell][None], which=size)[0]), np.int32)
+        if size == "train":
+            r = repair(name, lay, **opts)
+            print(
+                f"{cell} | S | default | {r.status} | {r.seconds:.1f} | {r.objective} | "
+                f"{r.details['bound']:.0f} |"
+            )
+            rules = make_rules(
+                name, lay.shape, n_shelves=opts.get("n_shelves"), n_agents=opts.get("n_agents", 200)
+            )
+            rules = dataclasses.replace(rules, tie_costs=tie_costs(lay, rules, opts.get("seed", 0)))
+            res = solve_window(r.layout, lay, ~rules.fixed, rules, time_limit=seconds, warm_start=True)
+            print(
+                f"{cell} | S | MILP from it | {res.status} | {res.seconds:.1f} | {res.objective} | "
+                f"{res.bound} | {res.nodes} nodes",
+                flush=True,
+            )
+            continue
+        rules = make_rules(
+            name, lay.shape, n_shelves=opts.get("n_shelves"), n_agents=opts.get("n_agents", 200)
+        )
+        rules = dataclasses.replace(rules, tie_costs=tie_costs(lay, rules, opts.get("seed", 0)))
+        start = repair_neighbourhood(
+            lay,
+            rules,
+            _greedy_for(name, rules, opts.get("n_agents", 200)),
+            time_limit=600,
+            improve_time=0,
+            improve_windows=0,
+            window=8,
+            window_time=2.0,
+            max_window_cells=1200,
+            max_violation_fraction=0.25,
+            threads=1,
+            seed=0,
+        ).layout
+        for solver in ("simplex", "ipm"):
+            res = solve_window(
+                start,
+                lay,
+                ~rules.fixed,
+                rules,
+                time_limit=seconds,
+                relaxation=True,
+                iteration_limit=10_000_000,
+                lp_solver=solver,
+            )
+            frac = None if res.fractional is None else int(res.fractional.sum())
+            print(
+                f"{cell} | S_eval | LP by {solver} | {res.status} | {res.seconds:.1f} | — | {res.bound} | "
+                f"{res.iterations} iterations, {frac} cells fractional",
+                flush=True,
+            )
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n-small", type=int, default=50)
@@ -178,7 +262,13 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument(
         "--seval", type=int, default=0, help="repair this many best elites of each --runs at S_eval instead"
     )
+    ap.add_argument("--probe", default=None, metavar="CELL[,CELL]", help="where these cells' repair gap lies")
+    ap.add_argument("--probe-s", type=float, default=300.0, help="(--probe) seconds per solve")
+    ap.add_argument("--probe-size", choices=("train", "eval"), default="train")
     args = ap.parse_args([] if argv is None else argv)
+    if args.probe:
+        probe(args.runs.split(",")[0], [int(c) for c in args.probe.split(",")], args.probe_s, args.probe_size)
+        return
     if args.seval:
         seval(args.runs, args.seval, args.windows or 0)
         return

@@ -315,6 +315,10 @@ def test_lp_rounding_keeps_the_lps_integral_cells_and_is_valid_and_bounded():
     assert np.array_equal(rounded[far], lp.layout[far])
     distance = weighted_distance(rounded, lay, rules.cell_weights(lay))
     assert lp.bound <= distance <= weighted_distance(start, lay, rules.cell_weights(lay))
+    # the same LP by interior point (with crossover): the same optimum, so the same bound (its
+    # vertex may differ: this LP has integral optima beside fractional ones)
+    ipm = solve_window(start, lay, ~rules.fixed, rules, relaxation=True, warm_start=True, lp_solver="ipm")
+    assert ipm.status in ("fractional", "optimal") and ipm.bound == lp.bound
 
 
 def dilate_mask(mask, radius):

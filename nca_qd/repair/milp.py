@@ -314,7 +314,9 @@ def _rule_rows(g: _Graph, current: np.ndarray, window: np.ndarray, rules: Rules,
         rows.add(cols, [1.0] * len(cols), need, hi)
 
 
-def _options(hs, time_limit, threads, seed, max_nodes, check_limit, relaxation, iteration_limit) -> None:
+def _options(
+    hs, time_limit, threads, seed, max_nodes, check_limit, relaxation, iteration_limit, lp_solver
+) -> None:
     """HiGHS's limits (work limits where set) and what a solve proves."""
     hs.setOptionValue("time_limit", max(0.05, float(time_limit)))
     hs.setOptionValue("threads", int(threads))
@@ -329,6 +331,9 @@ def _options(hs, time_limit, threads, seed, max_nodes, check_limit, relaxation, 
     if relaxation:
         hs.setOptionValue("solve_relaxation", True)
         hs.setOptionValue("simplex_strategy", 4)  # primal: it starts from the valid layout
+        if lp_solver == "ipm":  # interior point, then crossover to a vertex (rounding wants one)
+            hs.setOptionValue("solver", "ipm")
+            hs.setOptionValue("run_crossover", "on")
     if iteration_limit is not None:
         hs.setOptionValue("simplex_iteration_limit", int(iteration_limit))
 
@@ -374,6 +379,7 @@ def solve_window(
     relaxation: bool = False,
     iteration_limit: int | None = None,
     check_limit: int | None = None,
+    lp_solver: str = "simplex",
 ) -> WindowResult:
     """Best layout that equals ``current`` outside ``window`` (bool ``[h, w]``) and satisfies ``rules``.
 
@@ -386,7 +392,8 @@ def solve_window(
     the distance, and when it is integral it is the MIP's optimum (``optimal``; otherwise
     ``fractional`` with the bound, and as ``layout`` the LP's largest tile per cell, which need
     not be valid). ``iteration_limit`` caps its simplex
-    iterations (a work limit: ``timeout`` when reached).
+    iterations (a work limit: ``timeout`` when reached). ``lp_solver="ipm"`` solves it by
+    interior point with crossover instead (at 101x102 it was slower: docs/benchmarks.md).
 
     ``check_limit`` stops the MIP after that many of HiGHS's interrupt checks (its callbacks
     between the LPs of the root's cut rounds and between nodes): a work limit where the node
@@ -405,7 +412,7 @@ def solve_window(
     _tile_and_flow_rows(g, rows)
     _rule_rows(g, current, window, rules, rows)
     hs = quiet_highs()
-    _options(hs, time_limit, threads, seed, max_nodes, check_limit, relaxation, iteration_limit)
+    _options(hs, time_limit, threads, seed, max_nodes, check_limit, relaxation, iteration_limit, lp_solver)
     _load(hs, columns, rows)
     n_x, K, integrality = g.n_x, g.K, columns[3]
     if warm_start:
