@@ -10,8 +10,10 @@ from where the last stopped: a finished arm is skipped, a started one resumed
 ``leg_seconds``. Where the plan names ``evaluate: [overrides]``, a finished arm is then
 evaluated (``experiments.evaluate run_dir=<root>/<arm> <overrides>``, into
 ``<root>/<arm>/evaluation``) before the next arm starts: every arm with the same protocol, and
-the comparison's tables need each arm's ``evaluation/summary.csv``. An evaluation cut by the
-call's time keeps its finished runs (``evaluation/*.jsonl``) and the next call goes on from them.
+the comparison's tables need each arm's ``evaluation/summary.csv``. An arm evaluated before the
+plan's ``evaluate:`` changed is evaluated again (its records serve what did not change). An
+evaluation cut by the call's time keeps its finished runs (``evaluation/*.jsonl``) and the next
+call goes on from them.
 Exit 0 when every arm has finished (and been evaluated), 75 when the time ran out first (call
 again; commit the arms' folders between calls to carry them to another machine). Bad input: one
 line, exit 2.
@@ -69,9 +71,31 @@ def load_plan(name: str) -> tuple[Path, list[str], dict[str, list[str]], list[st
     return Path(str(raw.root)), [str(c) for c in common], arms, evaluate
 
 
-def evaluated(run_dir: Path) -> bool:
-    """Whether an arm's evaluation has finished (it writes summary.csv last)."""
-    return (run_dir / "evaluation" / "summary.csv").is_file()
+def evaluated(run_dir: Path, overrides: list[str] | None = None) -> bool:
+    """Whether an arm's evaluation has finished (it writes summary.csv last) with the plan's
+    ``overrides``: each ``key=value`` as its ``evaluate_config.yaml`` holds it. A plan that asks
+    more of its evaluations later (another key, another value) thus gets its finished arms
+    evaluated again, from their records where the protocol is unchanged."""
+    folder = run_dir / "evaluation"
+    if not (folder / "summary.csv").is_file():
+        return False
+    if not overrides:
+        return True
+    saved_file = folder / "evaluate_config.yaml"
+    if not saved_file.is_file():
+        return False
+    saved = OmegaConf.to_container(OmegaConf.load(saved_file), resolve=True)
+    for override in overrides:
+        key, _, value = override.lstrip("+").partition("=")
+        node: Any = saved
+        for part in key.split("."):
+            if not isinstance(node, dict) or part not in node:
+                return False
+            node = node[part]
+        wanted = OmegaConf.to_container(OmegaConf.create(f"v: {value}"))["v"]  # the value as YAML reads it
+        if node != wanted:
+            return False
+    return True
 
 
 class LegEnded(KeyboardInterrupt):
@@ -155,14 +179,19 @@ def main(argv: list[str]) -> int:
         for arm in arms:
             line = _status_line(arm, progress(root / arm))
             if evaluate is not None and progress(root / arm)["state"] == "finished":
-                line += ", evaluated" if evaluated(root / arm) else ", not yet evaluated"
+                if evaluated(root / arm, evaluate):
+                    line += ", evaluated"
+                elif evaluated(root / arm):
+                    line += ", evaluated, not yet with the plan's evaluate settings (next call)"
+                else:
+                    line += ", not yet evaluated"
             print(line)
         return 0
     end = None if budget is None else time.monotonic() + float(budget)
     for arm, overrides in arms.items():
         run_dir = root / arm
         state = progress(run_dir)
-        to_evaluate = evaluate is not None and not evaluated(run_dir)
+        to_evaluate = evaluate is not None and not evaluated(run_dir, evaluate)
         if state["state"] == "finished" and not to_evaluate:
             continue
         left = None if end is None else end - time.monotonic()

@@ -93,6 +93,17 @@ def test_a_campaign_evaluates_each_finished_arm_with_the_plans_protocol(tmp_path
     assert capsys.readouterr().out.strip().endswith(", evaluated")
     assert campaign.main([f"plan={plan}"]) == 0  # evaluated: nothing left
     assert "has finished and been evaluated" in capsys.readouterr().out
+    # the plan asks more later: the arm counts as evaluated only with the plan's settings
+    assert campaign.evaluated(run_dir, evaluate) and campaign.evaluated(run_dir, ["sweep.train.agents=[]"])
+    assert not campaign.evaluated(run_dir, [*evaluate, "runs.train=3"])
+    assert not campaign.evaluated(run_dir, ["sweep.train.exact_agents=[10]"])
+    assert not campaign.evaluated(run_dir, ["no.such.key=1"])
+    longer = ["T=40", *evaluate[1:]]
+    plan.write_text(f"root: {tmp_path / 'arms'}\ncommon: {common}\narms:\n  a: {qd}\nevaluate: {longer}\n")
+    assert campaign.main([f"plan={plan}", "status=true"]) == 0
+    assert "not yet with the plan's evaluate settings" in capsys.readouterr().out
+    assert campaign.main([f"plan={plan}"]) == 0  # evaluated again, now with T=40
+    assert OmegaConf.load(run_dir / "evaluation" / "evaluate_config.yaml").T == 40
 
 
 def test_an_evaluation_cut_by_the_calls_time_ends_the_leg(tmp_path, monkeypatch):
