@@ -127,8 +127,7 @@ SimResult simulate_pibt(const SimConfig& cfg) {
   PibtStep step(grid, agents, plan_rng);
   std::vector<int> order(N);
   std::iota(order.begin(), order.end(), 0);
-  std::vector<int> round_start(N);
-  std::vector<char> stuck(N);
+  StuckWatch watch(N);
   int t = 0;
   while (t < T) {
     if (clock.expired()) {
@@ -137,7 +136,7 @@ SimResult simulate_pibt(const SimConfig& cfg) {
     }
     // A round of h steps, as RHCR's: its congestion rule is checked at the round's end.
     const int steps = std::min(h, T - t);
-    for (int a = 0; a < N; ++a) round_start[a] = agents[a].cell, stuck[a] = !agents[a].tasking;
+    for (int a = 0; a < N; ++a) watch.begin(a, agents[a].cell, agents[a].tasking);
     for (int s = 1; s <= steps; ++s) {
       std::sort(order.begin(), order.end(), [&](int x, int y) {
         if (agents[x].elapsed != agents[y].elapsed) return agents[x].elapsed > agents[y].elapsed;
@@ -166,7 +165,7 @@ SimResult simulate_pibt(const SimConfig& cfg) {
           if (ag.arrived) ++ag.stayed, ag.tasking = ag.goal.dwell > 0;
           else ag.arrived = true, ag.stayed = 0;
         }
-        if (s < h && (ag.cell != round_start[a] || ag.tasking)) stuck[a] = 0;
+        watch.step(a, s, h, ag.cell, ag.tasking);
         while (ag.arrived && ag.stayed >= ag.goal.dwell) {
           ++finished;
           ag.arrived = false;
@@ -178,8 +177,7 @@ SimResult simulate_pibt(const SimConfig& cfg) {
       res.finished_tasks += finished;
     }
     t += steps;
-    const int n_stuck = static_cast<int>(std::count(stuck.begin(), stuck.end(), 1));
-    if (2 * n_stuck > N) {
+    if (watch.congested()) {
       res.congested = true;
       break;
     }

@@ -75,6 +75,7 @@ SimResult simulate(const SimConfig& cfg) {
 
   std::vector<AgentQuery> queries(N);
   std::vector<int> plan;
+  StuckWatch watch(N);
   int t = 0;
   while (t < T) {
     if (clock.expired()) {
@@ -122,15 +123,8 @@ SimResult simulate(const SimConfig& cfg) {
       break;
     }
 
-    // 3. Execute the first h steps; count goals reached; watch for congestion. RHCR counts an
-    //    agent as stuck when it stood on one cell, not dwelling at a station, at times
-    //    t .. t+h-1 of this round.
-    std::vector<int> round_start(N);
-    std::vector<char> stuck(N);
-    for (int a = 0; a < N; ++a) {
-      round_start[a] = agents[a].cell;
-      stuck[a] = !agents[a].tasking;
-    }
+    // 3. Execute the first h steps; count goals reached; watch for congestion (StuckWatch).
+    for (int a = 0; a < N; ++a) watch.begin(a, agents[a].cell, agents[a].tasking);
     for (int s = 1; s <= steps; ++s) {
       int finished = 0;
       for (int a = 0; a < N; ++a) {
@@ -147,7 +141,7 @@ SimResult simulate(const SimConfig& cfg) {
           if (ag.arrived) ++ag.stayed, ag.tasking = ag.queue.front().dwell > 0;
           else ag.arrived = true, ag.stayed = 0;
         }
-        if (s < h && (next != round_start[a] || ag.tasking)) stuck[a] = 0;
+        watch.step(a, s, h, next, ag.tasking);
         while (ag.arrived && ag.stayed >= ag.queue.front().dwell) {
           ag.queue.pop_front();
           ++finished;
@@ -165,8 +159,7 @@ SimResult simulate(const SimConfig& cfg) {
     }
     t += steps;
     // 4. Congestion: more than half of the agents stuck.
-    const int n_stuck = static_cast<int>(std::count(stuck.begin(), stuck.end(), 1));
-    if (2 * n_stuck > N) {
+    if (watch.congested()) {
       res.congested = true;
       break;
     }

@@ -99,6 +99,32 @@ struct RunClock {
   const clock::time_point deadline;
 };
 
+// RHCR's congestion rule, the same for both planners: over a round of h executed steps an agent
+// is stuck when it stood on one cell, not dwelling at a station, at times t .. t+h-1 of the
+// round (the round's last step does not count); the run congests when more than half of the
+// agents are stuck at the round's end.
+class StuckWatch {
+ public:
+  explicit StuckWatch(int n_agents) : start_(n_agents), stuck_(n_agents) {}
+  // A round begins: each agent's cell and whether it is dwelling at a station now.
+  void begin(int agent, int cell, bool tasking) {
+    start_[agent] = cell;
+    stuck_[agent] = !tasking;
+  }
+  // Step s (1-based) of a round of h steps put the agent on `cell`.
+  void step(int agent, int s, int h, int cell, bool tasking) {
+    if (s < h && (cell != start_[agent] || tasking)) stuck_[agent] = 0;
+  }
+  bool congested() const {
+    const int n_stuck = static_cast<int>(std::count(stuck_.begin(), stuck_.end(), 1));
+    return 2 * n_stuck > static_cast<int>(stuck_.size());
+  }
+
+ private:
+  std::vector<int> start_;
+  std::vector<char> stuck_;
+};
+
 // The end of a run, the same for both planners: the time it stopped at, success (ran to T, not
 // congested, not timed out), throughput over T, every agent's goals flattened (goal_offsets[a]
 // .. goal_offsets[a + 1] are agent a's, in the order given), and the run's CPU and wall time.
