@@ -179,9 +179,8 @@ def probe(run: str, cells: list[int], seconds: float, size: str) -> None:
     from nca_qd.domains import make_domain
     from nca_qd.evaluation.layouts import load_run
     from nca_qd.pipeline import generate, make_generator
-    from nca_qd.repair import _greedy_for, tie_costs
+    from nca_qd.repair import tie_costs
     from nca_qd.repair.milp import solve_window
-    from nca_qd.repair.neighbourhood import repair_neighbourhood
     from nca_qd.scoring.jobs import repair_options
 
     cfg, archive = load_run(run)
@@ -193,16 +192,16 @@ def probe(run: str, cells: list[int], seconds: float, size: str) -> None:
     print("cell | size | what | status | seconds | distance | bound | detail")
     for cell in cells:
         lay = np.asarray(dom.assemble(generate(dom, gen, genotypes[cell][None], which=size)[0]), np.int32)
+        rules = make_rules(
+            name, lay.shape, n_shelves=opts.get("n_shelves"), n_agents=opts.get("n_agents", 200)
+        )
+        rules = dataclasses.replace(rules, tie_costs=tie_costs(lay, rules, opts.get("seed", 0)))
         if size == "train":
             r = repair(name, lay, **opts)
             print(
                 f"{cell} | S | default | {r.status} | {r.seconds:.1f} | {r.objective} | "
                 f"{r.details['bound']:.0f} |"
             )
-            rules = make_rules(
-                name, lay.shape, n_shelves=opts.get("n_shelves"), n_agents=opts.get("n_agents", 200)
-            )
-            rules = dataclasses.replace(rules, tie_costs=tie_costs(lay, rules, opts.get("seed", 0)))
             res = solve_window(r.layout, lay, ~rules.fixed, rules, time_limit=seconds, warm_start=True)
             print(
                 f"{cell} | S | MILP from it | {res.status} | {res.seconds:.1f} | {res.objective} | "
@@ -210,24 +209,8 @@ def probe(run: str, cells: list[int], seconds: float, size: str) -> None:
                 flush=True,
             )
             continue
-        rules = make_rules(
-            name, lay.shape, n_shelves=opts.get("n_shelves"), n_agents=opts.get("n_agents", 200)
-        )
-        rules = dataclasses.replace(rules, tie_costs=tie_costs(lay, rules, opts.get("seed", 0)))
-        start = repair_neighbourhood(
-            lay,
-            rules,
-            _greedy_for(name, rules, opts.get("n_agents", 200)),
-            time_limit=600,
-            improve_time=0,
-            improve_windows=0,
-            window=8,
-            window_time=2.0,
-            max_window_cells=1200,
-            max_violation_fraction=0.25,
-            threads=1,
-            seed=0,
-        ).layout
+        # the neighbourhood's valid layout (no improvement windows) as the LP's start
+        start = repair(name, lay, **{**opts, "method": "neighbourhood", "improve_windows": 0}).layout
         for solver in ("simplex", "ipm"):
             res = solve_window(
                 start,
