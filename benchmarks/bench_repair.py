@@ -30,8 +30,10 @@ neighbourhood repair and with the work-limited hybrid, one line per layout and m
 
 where a repair's gap lies (issue 54): at S, the default repair of each named cell's NCA layout,
 then the whole map's MILP warm-started from its layout for ``--probe-s`` seconds (does the
-incumbent fall or the bound rise?); at S_eval, the whole map's LP relaxation from the
-neighbourhood's layout by primal simplex and by interior point (seconds, iterations, bound).
+incumbent fall or the bound rise?), the MILP without connectivity and the LP with connectivity
+as separator cuts (two other lower bounds, :mod:`benchmarks.repair_bounds`); at S_eval, the
+whole map's LP relaxation from the neighbourhood's layout by primal simplex and by interior
+point (seconds, iterations, bound).
 """
 
 from __future__ import annotations
@@ -175,6 +177,7 @@ def probe(run: str, cells: list[int], seconds: float, size: str) -> None:
     """Where the gap of each cell's repair lies (module docstring, ``--probe``)."""
     import dataclasses
 
+    from benchmarks.repair_bounds import separator_lp, without_connectivity
     from experiments.cli import compose_config
     from nca_qd.domains import make_domain
     from nca_qd.evaluation.layouts import load_run
@@ -206,6 +209,14 @@ def probe(run: str, cells: list[int], seconds: float, size: str) -> None:
             print(
                 f"{cell} | S | MILP from it | {res.status} | {res.seconds:.1f} | {res.objective} | "
                 f"{res.bound} | {res.nodes} nodes",
+                flush=True,
+            )
+            st, obj, bound, sec = without_connectivity(r.layout, lay, rules, seconds)
+            print(f"{cell} | S | MILP without connectivity | {st} | {sec:.1f} | {obj} | {bound} |")
+            lp, rounds, cuts, sec = separator_lp(r.layout, lay, rules)
+            print(
+                f"{cell} | S | LP, connectivity by separator cuts | bound | {sec:.1f} | — | {lp} | "
+                f"{rounds} rounds, {cuts} cuts",
                 flush=True,
             )
             continue

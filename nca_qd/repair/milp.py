@@ -365,6 +365,34 @@ def _load(hs, columns, rows: _Rows) -> None:
     hs.changeObjectiveOffset(offset)
 
 
+def window_model(
+    current: np.ndarray, layout_in: np.ndarray, window: np.ndarray, rules: Rules, *, connectivity: bool = True
+) -> tuple[highspy.Highs, _Graph, np.ndarray] | None:
+    """The window's model loaded into a silent HiGHS (no options set), its graph and the
+    integrality of its columns; None for an empty window or an outside region it cannot reach.
+
+    ``connectivity=False`` leaves out the flow (its columns and rows): the tiles, the domain's
+    adjacency and count rules only. Its optimum bounds the repair's distance from below, and a
+    caller may impose connectivity another way (``benchmarks/repair_bounds.py`` adds separator
+    cuts: what bounds a stronger formulation than the flow could prove)."""
+    window = window & ~rules.fixed
+    g = _window_graph(current, window, rules) if window.any() else None
+    if g is None:
+        return None
+    columns = _columns(g, layout_in, rules)
+    rows = _Rows()
+    if connectivity:
+        _tile_and_flow_rows(g, rows)
+    else:
+        columns = (*(a[: g.n_x] for a in columns[:4]), columns[4])
+        for i in range(g.n):
+            rows.add([g.xcol(i, k) for k in range(g.K)], [1.0] * g.K, 1.0, 1.0)
+    _rule_rows(g, current, window, rules, rows)
+    hs = quiet_highs()
+    _load(hs, columns, rows)
+    return hs, g, columns[3]
+
+
 def solve_window(
     current: np.ndarray,
     layout_in: np.ndarray,
@@ -403,18 +431,13 @@ def solve_window(
     """
     t0 = time.perf_counter()
     window = window & ~rules.fixed
-    n = int(window.sum())
-    g = _window_graph(current, window, rules) if n else None
-    if g is None:  # an empty window, or an outside region the window cannot reach
-        return WindowResult("infeasible", None, None, time.perf_counter() - t0, n)
-    columns = _columns(g, layout_in, rules)
-    rows = _Rows()
-    _tile_and_flow_rows(g, rows)
-    _rule_rows(g, current, window, rules, rows)
-    hs = quiet_highs()
+    model = window_model(current, layout_in, window, rules)
+    if model is None:  # an empty window, or an outside region the window cannot reach
+        return WindowResult("infeasible", None, None, time.perf_counter() - t0, int(window.sum()))
+    hs, g, integrality = model
+    n = g.n
     _options(hs, time_limit, threads, seed, max_nodes, check_limit, relaxation, iteration_limit, lp_solver)
-    _load(hs, columns, rows)
-    n_x, K, integrality = g.n_x, g.K, columns[3]
+    n_x, K = g.n_x, g.K
     if warm_start:
         start = _warm_start(
             current,
