@@ -33,8 +33,9 @@ from experiments.cli import compose_config, main_guard, take_domain
 from nca_qd.errors import NcaQdError
 
 INTERRUPTED = (
-    "finished exact runs, screened batches and repairs are kept in <out>/exact_runs.jsonl, "
-    "<out>/screen_runs.jsonl and <out>/repairs.jsonl; the same command goes on from them"
+    "finished exact runs, screened batches and repairs are kept (packed) in "
+    "<out>/exact_runs.jsonl.gz, <out>/screen_runs.jsonl.gz and <out>/repairs.jsonl.gz; "
+    "the same command goes on from them"
 )
 
 

@@ -130,6 +130,19 @@ def read(path: Path) -> list[dict[str, str]]:
         return list(csv.DictReader(fh))
 
 
+def record_lines(folder: Path, name: str) -> list[dict]:
+    """The records of ``<folder>/<name>``, read from the files themselves: the packed
+    ``.jsonl.gz`` (written when an evaluation stops), then the plain journal appended since."""
+    import gzip
+
+    lines: list[str] = []
+    if (folder / f"{name}.jsonl.gz").is_file():
+        lines += gzip.decompress((folder / f"{name}.jsonl.gz").read_bytes()).decode().splitlines()
+    if (folder / f"{name}.jsonl").is_file():
+        lines += (folder / f"{name}.jsonl").read_text().splitlines()
+    return [json.loads(x) for x in lines if x.strip()]
+
+
 def test_every_output_is_written(evaluated):
     out, printed = evaluated
     for stem in (
@@ -575,7 +588,8 @@ def test_too_many_agents_names_the_layout(tiny_run, tmp_path, maps, monkeypatch,
     assert err[-1].startswith("error: ") and "500 agents but only" in err[-1]
     assert "(9x14)" in err[-1] and "lower the agent counts" in err[-1]
     # no output, only the repairs made before the check, which the corrected command reuses
-    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["repairs.jsonl"]
+    # (packed when the evaluation stopped)
+    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["repairs.jsonl.gz"]
 
 
 def test_a_failed_repair_is_a_row_without_runs_and_old_outputs_go(tmp_path, maps):
@@ -697,6 +711,10 @@ def test_the_screen_run_record_keys_on_every_input_and_the_screen_version(tmp_pa
     got = ScreenRunStore(tmp_path).get(key, need_detail=False)
     assert got is not None and (got.simulator, got.throughput, got.stop_time) == ("screen", 0.5, 40)
     assert (tmp_path / "screen_runs.jsonl").is_file() and not (tmp_path / "exact_runs.jsonl").exists()
+    store.pack()  # as when an evaluation stops: one gzip file, the journal gone
+    assert not (tmp_path / "screen_runs.jsonl").exists()
+    assert [r["key"] for r in record_lines(tmp_path, "screen_runs")] == [key]
+    assert ScreenRunStore(tmp_path).get(key, need_detail=False) == got
 
 
 def test_the_repair_record_keys_on_every_input_and_keeps_only_found_layouts(tmp_path):
@@ -812,7 +830,7 @@ def test_records_pack_narrow_and_an_evaluation_prunes_what_it_did_not_use(tmp_pa
     second = ExactRunStore(tmp_path)
     assert second.get("a", True) is not None and second.get("b", False) is not None
     assert second.prune() == 1
-    main = [json.loads(x)["key"] for x in (tmp_path / "exact_runs.jsonl").read_text().splitlines()]
+    main = [r["key"] for r in record_lines(tmp_path, "exact_runs")]
     spare = [
         json.loads(x)["key"] for x in (tmp_path / "exact_runs.superseded.jsonl").read_text().splitlines()
     ]
@@ -825,6 +843,36 @@ def test_records_pack_narrow_and_an_evaluation_prunes_what_it_did_not_use(tmp_pa
     assert third.prune() == 2  # a and b were not asked for this time
     fourth = ExactRunStore(tmp_path)
     assert len(fourth) == 1 and all(fourth.get(k, True) is not None for k in "abc")
+
+
+def test_screened_records_keep_their_tile_visits_only_where_asked_for(tmp_path):
+    """A screened run asked for without its tile visits (its cell has exact runs) is packed
+    without them, its tasks per step kept; one asked for with them, or not asked for at all in
+    this evaluation, keeps them. A record without visits does not serve a request for them."""
+    from nca_qd.evaluation.store import ScreenRunStore
+
+    tasks, visits = np.arange(30, dtype=np.int32) % 4, np.ones((3, 4), dtype=np.int32)
+    first = ScreenRunStore(tmp_path)
+    for k in ("bare", "heat", "other"):
+        first.add(k, RunOutcome("screen", 0, 0.4, True, 30, False, 0.1, None, tasks, visits))
+    first.pack()
+    second = ScreenRunStore(tmp_path)
+    assert second.get("bare", need_detail=True, need_visits=False) is not None
+    assert second.get("heat", need_detail=True) is not None
+    second.pack()
+    recs = {r["key"]: r for r in record_lines(tmp_path, "screen_runs")}
+    assert recs["bare"]["detail"] and recs["bare"]["tile_visits"] is None
+    assert recs["heat"]["tile_visits"] is not None and recs["other"]["tile_visits"] is not None
+    third = ScreenRunStore(tmp_path)
+    assert third.get("bare", need_detail=True) is None  # its visits are gone
+    got = third.get("bare", need_detail=True, need_visits=False)
+    assert got is not None and got.tile_visits is None
+    np.testing.assert_array_equal(got.tasks_per_step, tasks)
+    # a run with visits recorded again (now asked for) replaces the bare record, not the reverse
+    third.add("bare", RunOutcome("screen", 0, 0.4, True, 30, False, 0.1, None, tasks, visits))
+    third.add("heat", RunOutcome("screen", 0, 0.4, True, 30, False, 0.1, None, tasks, None))
+    fourth = ScreenRunStore(tmp_path)
+    assert fourth.get("bare", True) is not None and fourth.get("heat", True) is not None
 
 
 def load_map_rows(rows):
@@ -871,7 +919,7 @@ def test_an_evaluation_into_the_same_folder_reuses_its_repairs_and_so_its_runs(t
         calls.clear()
         with contextlib.redirect_stdout(io.StringIO()):
             assert evaluate_cli.main(argv) == 0
-        return len(calls), len((out / "exact_runs.jsonl").read_text().splitlines())
+        return len(calls), len(record_lines(out, "exact_runs"))
 
     def figures() -> list[dict[str, str]]:  # the summary less its timings
         return [{k: v for k, v in r.items() if "seconds" not in k} for r in read(out / "summary.csv")]
@@ -879,13 +927,13 @@ def test_an_evaluation_into_the_same_folder_reuses_its_repairs_and_so_its_runs(t
     first = evaluate()
     assert first == (3, 3)  # NCA at S and S_eval, tiling at S_eval; an exact run on each
     summary = figures()
-    assert len((out / "repairs.jsonl").read_text().splitlines()) == 3
+    assert len(record_lines(out, "repairs")) == 3
     assert evaluate() == (0, 3)
     assert figures() == summary
-    (out / "repairs.jsonl").unlink()  # as in a folder evaluated before repairs.jsonl
+    (out / "repairs.jsonl.gz").unlink()  # as in a folder evaluated before repairs.jsonl
     assert evaluate() == (0, 3)
-    assert len((out / "repairs.jsonl").read_text().splitlines()) == 3
-    (out / "repairs.jsonl").unlink()
+    assert len(record_lines(out, "repairs")) == 3
+    (out / "repairs.jsonl.gz").unlink()
     broken = out / "layouts" / "nca_c3_13x18.json"
     data = json.loads(broken.read_text())
     data["layout"] = [row.replace("@", ".") for row in data["layout"]]  # no shelves left

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import pytest
 from test_evaluate import TINY_RUN as TINY_EVALUATE_RUN
-from test_evaluate import HUMAN_9x14, make_run
+from test_evaluate import HUMAN_9x14, make_run, record_lines
 
 from experiments import evaluate as evaluate_cli
 
@@ -142,12 +142,18 @@ def test_an_interrupted_evaluation_goes_on_from_its_recorded_runs(evaluated, tmp
     skipped), screens nothing again and writes the golden CSVs; a third runs none."""
     from nca_qd.evaluation import runs as runs_module
 
-    recorded = (evaluated / "exact_runs.jsonl").read_text().splitlines()
+    recorded = [json.dumps(r) for r in record_lines(evaluated, "exact_runs")]
     _, rows = read(evaluated / "runs.csv")
     exact = {(r["layout"], r["size"], r["n_agents"], r["seed"]) for r in rows if r["simulator"] == "rhcr"}
     assert len(recorded) == len(exact) > 2
     screened = [r for r in rows if r["simulator"] == "screen"]
-    assert len((evaluated / "screen_runs.jsonl").read_text().splitlines()) == len(screened) > 0
+    assert len(record_lines(evaluated, "screen_runs")) == len(screened) > 0
+    assert not (evaluated / "exact_runs.jsonl").exists()  # packed when the evaluation ended
+    # the main comparison's screened runs keep their tasks per step but not their tile visits
+    # (their cells have exact runs, which draw the heatmaps); the exact runs keep both
+    screen_recs = record_lines(evaluated, "screen_runs")
+    assert any(r["detail"] for r in screen_recs) and all(r["tile_visits"] is None for r in screen_recs)
+    assert all(r["tile_visits"] is not None for r in record_lines(evaluated, "exact_runs") if r["detail"])
     real, calls = runs_module.exact_job, []
     real_screen, screen_calls = runs_module.screen_group, []
 
@@ -171,7 +177,8 @@ def test_an_interrupted_evaluation_goes_on_from_its_recorded_runs(evaluated, tmp
     monkeypatch.setattr(runs_module, "exact_job", interrupted_after_two)
     with pytest.raises(KeyboardInterrupt):
         run_evaluation(evaluated.parent, out)
-    kept = (out / "exact_runs.jsonl").read_text().splitlines()
+    assert (out / "exact_runs.jsonl.gz").is_file() and not (out / "exact_runs.jsonl").exists()
+    kept = [json.dumps(r) for r in record_lines(out, "exact_runs")]  # packed when it was cut
     assert [json.loads(line)["key"] for line in kept] == [json.loads(line)["key"] for line in recorded[:2]]
     with (out / "exact_runs.jsonl").open("a") as fh:  # a write cut short
         fh.write(recorded[-1][:40])

@@ -28,8 +28,9 @@ bottom as the evaluation's steps); one module per step, each usable on its own:
 * :mod:`.selection`: ``select.by=s_eval``, the generators chosen by a screening run at S_eval;
 * :mod:`.layouts`: the run's archive, the layouts generated, tiled, loaded and repaired;
 * :mod:`.runs`: the exact RHCR runs and the screened runs of every (layout, agent count);
-* :mod:`.store`: every exact run recorded as it ends (``exact_runs.jsonl``), every screened
-  batch's runs likewise (``screen_runs.jsonl``), every repaired layout (``repairs.jsonl``: the
+* :mod:`.store`: every exact run recorded as it ends (``exact_runs.jsonl``, packed into
+  ``exact_runs.jsonl.gz`` when the evaluation stops), every screened batch's runs likewise
+  (``screen_runs.jsonl``), every repaired layout (``repairs.jsonl``: the
   repair is time-limited, so repairing again may give another layout), reused by the next
   evaluation into the same folder, so an interrupted one resumes;
 * :mod:`.stats`: the statistics of a set of runs;
@@ -145,6 +146,8 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
     backend = make_backend(ecfg.get("eval"))  # an unreachable scheduler fails here, early
     selection: Selection | None = None
     repair_store = RepairStore(out) if plan.repair_reuse else None
+    store: ExactRunStore | None = None
+    screen_store: ScreenRunStore | None = None
 
     def repair(backend: Any, domain_name: str, items: list) -> None:
         repair_all(backend, domain_name, items, store=repair_store)
@@ -187,6 +190,12 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
             store,
             screen_store,
         )
+    except BaseException:  # Ctrl-C, SIGTERM, a campaign's leg: the records packed to ship
+        backend.close()
+        for st in (repair_store, store, screen_store):
+            if st is not None:
+                st.pack()
+        raise
     finally:
         backend.close()
     out.mkdir(parents=True, exist_ok=True)
@@ -198,10 +207,13 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
     if selection:
         write_selection(out, selection, tiles)
     remove_stale_outputs(out, t_write - 2.0)
-    if ecfg["prune_records"]:  # every run asked for is in: the record files keep what it used
-        for st in (repair_store, store, screen_store):
-            if st is not None:
-                st.prune()
+    for st in (repair_store, store, screen_store):
+        if st is None:
+            continue
+        if ecfg["prune_records"]:  # every run asked for is in: the record files keep what it used
+            st.prune()
+        else:
+            st.pack()
     return Evaluation(name, out, layouts, requests, results, summary, md)
 
 

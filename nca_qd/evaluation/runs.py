@@ -157,7 +157,9 @@ def _screen_cells(
         known: dict[str, list[RunOutcome]] = {}
         if store is not None:
             for c in group:
-                outs = [store.get(key_of(c, seed0 + i), c.detail) for i in range(c.screen_runs)]
+                outs = [
+                    store.get(key_of(c, seed0 + i), c.detail, _screen_visits(c)) for i in range(c.screen_runs)
+                ]
                 if all(o is not None for o in outs):
                     known[c.layout] = [o for o in outs if o is not None]
                     reused += len(outs)
@@ -174,6 +176,12 @@ def _screen_cells(
     if reused and store is not None:
         log.info("%d screened run(s) reused from %s", reused, store.path)
     bar.close()
+
+
+def _screen_visits(c: Request) -> bool:
+    """Whether a cell's screened runs keep their tile visits: only for the heatmap of a cell
+    without exact runs (with them, the heatmap is the exact runs')."""
+    return c.detail and c.exact_runs == 0
 
 
 def _outcome(out: Any, seed: int) -> RunOutcome:
@@ -222,7 +230,7 @@ def screen_group(
                     per_run,
                     None,
                     np.asarray(r.tasks_per_step) if c.detail else None,
-                    np.asarray(r.tile_visits) if c.detail else None,
+                    np.asarray(r.tile_visits) if _screen_visits(c) else None,
                 )
                 for r in row[: c.screen_runs]
             ]

@@ -24,11 +24,19 @@ which no recorded run serves. So each repair is recorded too, keyed by the layou
 the domain and every repair option, and a later evaluation reuses the recorded layout (after
 checking it against the domain's rules) instead of repairing again: the same command goes on
 from the same layouts.
+
+When an evaluation stops — finished, or cut by Ctrl-C, SIGTERM or a campaign's leg — each file's
+records are packed into ``<name>.jsonl.gz`` (gzip, one line per key) and the plain journal
+``<name>.jsonl`` is removed; the next evaluation reads the packed file, then appends to a new
+journal. Packed, the records of a 101x102 evaluation are small enough to ship with the run (a
+re-evaluation then screens nothing again), and a screened run keeps its tile visits only where
+its cell asked for them (a cell with exact runs draws its heatmap from those).
 """
 
 from __future__ import annotations
 
 import base64
+import gzip
 import json
 import logging
 import os
@@ -111,10 +119,18 @@ class JsonlRecords:
         self._open_line = False  # the file ends inside a line (a write cut short)
         if self.superseded_path.is_file():
             self._spare, _ = self._read(self.superseded_path)
+        if self.packed_path.is_file():
+            self._runs, _ = self._read(self.packed_path)
         if self.path.is_file():
-            self._runs, self._open_line = self._read(self.path)
-            if self._runs:
-                log.info("%s: %d %s", self.path, len(self._runs), self.what)
+            journal, self._open_line = self._read(self.path)
+            self._runs.update(journal)
+        if self._runs:
+            log.info("%s: %d %s", self.path.parent, len(self._runs), self.what)
+
+    @property
+    def packed_path(self) -> Path:
+        """The packed records (:meth:`pack`): ``<name>.jsonl.gz``."""
+        return self.path.with_name(self.path.name + ".gz")
 
     @property
     def superseded_path(self) -> Path:
@@ -126,7 +142,15 @@ class JsonlRecords:
         """The records of one file by key (a later line wins) and whether it ends inside a line."""
         bad = 0
         recs: dict[str, dict[str, Any]] = {}
-        text = path.read_text(encoding="utf-8", errors="replace")
+        if path.suffix == ".gz":
+            try:
+                text = gzip.decompress(path.read_bytes()).decode("utf-8", errors="replace")
+            except (OSError, EOFError) as exc:
+                from nca_qd.errors import NcaQdError
+
+                raise NcaQdError(f"{path}: not a readable gzip file ({exc}); move it aside") from None
+        else:
+            text = path.read_text(encoding="utf-8", errors="replace")
         for line in text.splitlines():
             if not line.strip():
                 continue
@@ -169,26 +193,26 @@ class JsonlRecords:
         self._used.add(key)
 
     def prune(self) -> int:
-        """Keep in the main file only the records this evaluation used (one line per key,
-        arrays re-packed by :func:`_pack`); the others go to :attr:`superseded_path`, written
-        first, so nothing recorded is lost (records of earlier settings: screened runs beside
-        cells that have since got exact runs, runs of a layout a changed repair no longer
-        gives). Returns how many records moved. Called when an evaluation has ended with every
-        run it asked for: the main file then holds what the folder's outputs rest on (what to
-        ship), and the same command repeated reuses all of it."""
+        """Keep in the main (packed) file only the records this evaluation used (:meth:`pack`);
+        the others go to :attr:`superseded_path`, written first, so nothing recorded is lost
+        (records of earlier settings: screened runs beside cells that have since got exact runs,
+        runs of a layout a changed repair no longer gives). Returns how many records moved.
+        Called when an evaluation has ended with every run it asked for: the main file then
+        holds what the folder's outputs rest on (what to ship), and the same command repeated
+        reuses all of it."""
         from nca_qd.io import atomic_write_text
 
         with self._lock:
-            if not self.path.is_file():
+            if not (self.path.is_file() or self.packed_path.is_file()):
                 return 0
             moved = {k: r for k, r in self._runs.items() if k not in self._used}
             spare = {k: r for k, r in self._spare.items() if k not in self._runs}
             spare.update(moved)
             if moved:
                 atomic_write_text(self.superseded_path, "".join(json.dumps(r) + "\n" for r in spare.values()))
-            kept = {k: _repacked(r) for k, r in self._runs.items() if k in self._used}
-            atomic_write_text(self.path, "".join(json.dumps(r) + "\n" for r in kept.values()))
-            self._runs, self._spare, self._open_line = kept, spare, False
+            self._runs = {k: r for k, r in self._runs.items() if k in self._used}
+            self._spare = spare
+        self.pack()
         if moved:
             log.info(
                 "%s: %d record(s) this evaluation did not use moved to %s",
@@ -198,6 +222,28 @@ class JsonlRecords:
             )
         return len(moved)
 
+    def _packed_record(self, key: str, rec: dict[str, Any]) -> dict[str, Any]:
+        """A record as :meth:`pack` writes it: its arrays packed as :func:`_pack` packs them today."""
+        return _repacked(rec)
+
+    def pack(self) -> None:
+        """Write every record into :attr:`packed_path` (gzip, one line per key, written
+        atomically) and remove the journal. Called when an evaluation stops, finished or cut."""
+        from nca_qd.io import atomic_write_bytes
+
+        with self._lock:
+            if not (self.path.is_file() or self.packed_path.is_file()):
+                return
+            self._open_line = False
+            if not self._runs:
+                self.packed_path.unlink(missing_ok=True)
+                self.path.unlink(missing_ok=True)
+                return
+            self._runs = {k: self._packed_record(k, r) for k, r in self._runs.items()}
+            text = "".join(json.dumps(r) + "\n" for r in self._runs.values())
+            atomic_write_bytes(self.packed_path, gzip.compress(text.encode("utf-8"), 9, mtime=0))
+            self.path.unlink(missing_ok=True)
+
 
 def _repacked(rec: Mapping[str, Any]) -> dict[str, Any]:
     """A record with its arrays packed as :func:`_pack` packs them today."""
@@ -205,18 +251,34 @@ def _repacked(rec: Mapping[str, Any]) -> dict[str, Any]:
 
 
 class RunStore(JsonlRecords):
-    """The runs of one simulator recorded in one evaluation folder; :meth:`add` appends."""
+    """The runs of one simulator recorded in one evaluation folder; :meth:`add` appends.
+
+    A run's detail is its tasks per step (``detail``) and its tile visits; either may be asked
+    for. The keys this evaluation asked for without visits (and never with them) are
+    remembered: :class:`ScreenRunStore` packs those records without their visits."""
 
     simulator = "rhcr"
 
-    def get(self, key: str, need_detail: bool) -> RunOutcome | None:
-        """The recorded run for ``key`` if it completed (and kept its detail when needed)."""
+    def __init__(self, out: Path):
+        super().__init__(out)
+        self._visits_wanted: set[str] = set()
+        self._visits_unwanted: set[str] = set()
+
+    def get(self, key: str, need_detail: bool, need_visits: bool | None = None) -> RunOutcome | None:
+        """The recorded run for ``key`` if it completed and kept what is needed: its tasks per
+        step (``need_detail``) and its tile visits (``need_visits``, by default as
+        ``need_detail``)."""
+        need_visits = need_detail if need_visits is None else need_visits
         rec = self._find(key)
         if rec is None or rec.get("timed_out") or rec.get("error"):
             return None
         if need_detail and not rec.get("detail"):
             return None
+        if need_visits and rec.get("tile_visits") is None:
+            return None
         self._use(key, rec)
+        with self._lock:
+            (self._visits_wanted if need_visits else self._visits_unwanted).add(key)
         return RunOutcome(
             self.simulator,
             int(rec["seed"]),
@@ -231,8 +293,10 @@ class RunStore(JsonlRecords):
         )
 
     def add(self, key: str, outcome: RunOutcome) -> None:
-        """Append one finished run (flushed and synced, so a crash keeps it)."""
-        detail = outcome.tasks_per_step is not None and outcome.tile_visits is not None
+        """Append one finished run (flushed and synced, so a crash keeps it), with whichever
+        detail it carries."""
+        detail = outcome.tasks_per_step is not None
+        visits = outcome.tile_visits is not None
         rec = {
             "key": key,
             "seed": int(outcome.seed),
@@ -244,12 +308,16 @@ class RunStore(JsonlRecords):
             "error": outcome.error,
             "detail": detail,
             "tasks_per_step": _pack(outcome.tasks_per_step) if detail else None,
-            "tile_visits": _pack(outcome.tile_visits) if detail else None,
+            "tile_visits": _pack(outcome.tile_visits) if visits else None,
         }
         with self._lock:
+            if visits:
+                self._visits_wanted.add(key)
             old = self._runs.get(key)
-            if old is not None and old.get("detail") and not detail and not old.get("error"):
-                return  # never replace a detailed record by a bare one
+            if old is not None and not old.get("error"):
+                old_rank = bool(old.get("detail")) + (old.get("tile_visits") is not None)
+                if old_rank > detail + visits:
+                    return  # never replace a detailed record by a barer one
             self._append(key, rec)
 
 
@@ -262,6 +330,13 @@ class ScreenRunStore(RunStore):
 
     filename = SCREEN_FILENAME
     simulator = "screen"
+
+    def _packed_record(self, key: str, rec: dict[str, Any]) -> dict[str, Any]:
+        """Without its tile visits when this evaluation asked for the run without them (its
+        cell has exact runs, whose visits draw the heatmap): most of a 101x102 record's bytes."""
+        if key in self._visits_unwanted and key not in self._visits_wanted:
+            rec = {**rec, "tile_visits": None}
+        return super()._packed_record(key, rec)
 
 
 class RepairStore(JsonlRecords):
