@@ -20,7 +20,7 @@ from 2026-11-28: LP relaxation and its exact rounding; ``--windows N``: with N w
 it): per run and mode the median / mean / max seconds, how many are proven optimal or within
 1 % of the proven bound, and the total distance.
 
-    .venv/bin/python -m benchmarks.bench_repair --seval 5 [--runs ...]
+    .venv/bin/python -m benchmarks.bench_repair --seval 5 [--runs ...] [--modes 'time;work;work, lazy']
 
 repairs the 5 best elites of each run at S_eval (C_eval) with the evaluation's time-limited
 neighbourhood repair and with the work-limited hybrid, one line per layout and mode.
@@ -95,8 +95,12 @@ def run_set(label: str, domain: str, layouts, rows: list, **opts) -> list:
 RUNS = "results/warehouse_even_qd/cma_mae_a5_s0,results/warehouse_uneven_a5"
 
 
-def elites(runs: str, n: int, seed: int, windows: int | None = None) -> None:
-    """Time-limited against work-limited repair on ``n`` elites of each run (module docstring)."""
+def elites(
+    runs: str, n: int, seed: int, windows: int | None = None, modes_wanted: list[str] | None = None
+) -> None:
+    """Time-limited against work-limited repair (with the flow's LP and the rules-only one,
+    ``connectivity: lazy``) on ``n`` elites of each run (module docstring); ``modes_wanted``:
+    only these."""
     from experiments.cli import compose_config
     from nca_qd.domains import make_domain
     from nca_qd.evaluation.layouts import load_run
@@ -115,12 +119,14 @@ def elites(runs: str, n: int, seed: int, windows: int | None = None) -> None:
         filled = np.flatnonzero(np.isfinite(np.asarray(archive["objective"])))
         cells = np.random.default_rng(seed).choice(filled, size=min(n, len(filled)), replace=False)
         genotypes = np.asarray(archive["genotypes"])
-        out: dict[str, list] = {"time": [], "work": []}
+        modes = {"time": timed, "work": work, "work, lazy": {**work, "connectivity": "lazy"}}
+        modes = {m: o for m, o in modes.items() if modes_wanted is None or m in modes_wanted}
+        out: dict[str, list] = {m: [] for m in modes}
         for cell in cells:
             lay = np.asarray(
                 dom.assemble(generate(dom, gen, genotypes[cell][None], which="train")[0]), np.int32
             )
-            for mode, opts in (("time", timed), ("work", work)):
+            for mode, opts in modes.items():
                 out[mode].append(repair(cfg["domain"]["name"], lay, **opts))
         for mode, res in out.items():
             secs = [r.seconds for r in res]
@@ -137,10 +143,11 @@ def elites(runs: str, n: int, seed: int, windows: int | None = None) -> None:
             )
 
 
-def seval(runs: str, n: int, windows: int = 0) -> None:
+def seval(runs: str, n: int, windows: int = 0, modes_wanted: list[str] | None = None) -> None:
     """The ``n`` best elites of each run at S_eval (C_eval): the time-limited repair the
     evaluation ran until 2026-11-28 (neighbourhood, 20 s of windows) against the work-limited
-    hybrid (LP relaxation and its exact rounding, then ``windows`` windows)."""
+    hybrid (LP relaxation and its exact rounding, then ``windows`` windows), with the flow's LP
+    and with the rules-only one (``connectivity: lazy``); ``modes_wanted``: only these."""
     from experiments.cli import compose_config
     from nca_qd.domains import make_domain
     from nca_qd.evaluation.layouts import load_run
@@ -157,8 +164,11 @@ def seval(runs: str, n: int, windows: int = 0) -> None:
         base = repair_options(compose_config("run", [f"domain={name}"]).domain, "eval")
         modes = {
             "time": {**base, "method": "neighbourhood", "improve_windows": None, "improve_time_s": "auto"},
-            "work": {**base, "method": "hybrid", "improve_windows": windows},
+            "work": {**base, "method": "hybrid", "improve_windows": windows, "connectivity": "flow"},
+            "work, lazy": {**base, "method": "hybrid", "improve_windows": windows, "connectivity": "lazy"},
         }
+        if modes_wanted:
+            modes = {m: o for m, o in modes.items() if m in modes_wanted}
         genotypes = np.asarray(archive["genotypes"])
         for cell in select_elites(np.asarray(archive["objective"]), n):
             lay = np.asarray(
@@ -256,18 +266,24 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument(
         "--seval", type=int, default=0, help="repair this many best elites of each --runs at S_eval instead"
     )
+    ap.add_argument(
+        "--modes",
+        default=None,
+        help="(--seval, --elites) only these modes, separated by ';': time, work, 'work, lazy'",
+    )
     ap.add_argument("--probe", default=None, metavar="CELL[,CELL]", help="where these cells' repair gap lies")
     ap.add_argument("--probe-s", type=float, default=300.0, help="(--probe) seconds per solve")
     ap.add_argument("--probe-size", choices=("train", "eval"), default="train")
     args = ap.parse_args([] if argv is None else argv)
+    modes = None if args.modes is None else [m.strip() for m in args.modes.split(";")]
     if args.probe:
         probe(args.runs.split(",")[0], [int(c) for c in args.probe.split(",")], args.probe_s, args.probe_size)
         return
     if args.seval:
-        seval(args.runs, args.seval, args.windows or 0)
+        seval(args.runs, args.seval, args.windows or 0, modes)
         return
     if args.elites:
-        elites(args.runs, args.elites, args.seed, args.windows)
+        elites(args.runs, args.elites, args.seed, args.windows, modes)
         return
     rows: list = []
     compare: list = []

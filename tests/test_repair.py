@@ -336,3 +336,56 @@ def test_work_limited_hybrid_proves_the_papers_repair_optimal():
     assert_result_ok(res, "warehouse_even", lay)
     assert res.status == "optimal" and res.hamming == 32
     assert res.details["bound"] == res.objective and res.details["gap"] == 0.0
+
+
+WORK_LAZY = dict(method="hybrid", improve_windows=0, tie_break="random", connectivity="lazy")
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_lazy_connectivity_is_valid_and_its_bound_holds(seed):
+    """connectivity=lazy (the rules-only LP, rounded, kept when connected): a valid layout
+    (independent validator), no nearer than the full MILP's proven optimum, and a bound no
+    higher than it; on a manufacturing floor too (its full MILP is too slow to compare)."""
+    rng = np.random.default_rng(seed)
+    lay = wh.assemble(rng.integers(0, 3, size=(7, 6)).astype(np.int32))
+    full = repair("warehouse_even", lay, n_shelves=6, method="full", time_limit_s=60, tie_break="random")
+    lazy = repair("warehouse_even", lay, n_shelves=6, **WORK_LAZY)
+    assert full.status == "optimal"
+    assert_result_ok(lazy, "warehouse_even", lay, n_shelves=6)
+    assert lazy.details["lazy_status"] in ("connected", "not_connected", "no_rounding")
+    assert lazy.details["bound"] <= full.objective <= lazy.objective
+    floor = rng.integers(0, 5, size=(6, 7)).astype(np.int32)
+    res = repair("manufacturing", floor, n_agents=8, **WORK_LAZY)
+    assert_result_ok(res, "manufacturing", floor, n_agents=8)
+    assert res.layout is not None and res.details["bound"] <= res.objective
+
+
+def test_lazy_connectivity_falls_back_to_the_flow_where_the_rules_wall_a_cell_in():
+    """An endpoint walled in by its four shelves meets every rule but connectivity: the
+    rules-only rounding keeps it (not connected, discarded) and the flow's LP and its rounding
+    repair it, to the full MILP's proven optimum (2 changes)."""
+    storage = np.zeros((5, 5), np.int32)
+    storage[2, 2] = 2
+    storage[1, 2] = storage[3, 2] = storage[2, 1] = storage[2, 3] = 1
+    lay = wh.assemble(storage)
+    res = repair("warehouse_even", lay, n_shelves=4, **WORK_LAZY)
+    assert_result_ok(res, "warehouse_even", lay, n_shelves=4)
+    assert res.details["lazy_status"] == "not_connected" and "lp_status" in res.details
+    full = repair("warehouse_even", lay, n_shelves=4, method="full", time_limit_s=60)
+    assert full.status == "optimal" and res.objective == full.objective == 2
+
+
+def test_connectivity_option_is_checked_and_absent_from_keys_at_its_default():
+    from nca_qd.errors import NcaQdError
+    from nca_qd.scoring.keys import repair_key
+
+    lay = wh.assemble(np.zeros((3, 4), np.int32))
+    with pytest.raises(NcaQdError, match="unknown connectivity 'none'"):
+        repair("warehouse_even", lay, n_shelves=1, connectivity="none")
+    opts = {"method": "hybrid", "n_shelves": 1}
+    assert repair_key("warehouse_even", lay, opts) == repair_key(
+        "warehouse_even", lay, {**opts, "connectivity": "flow"}
+    )
+    assert repair_key("warehouse_even", lay, opts) != repair_key(
+        "warehouse_even", lay, {**opts, "connectivity": "lazy"}
+    )

@@ -32,6 +32,7 @@ REPAIR_OPTIONS = (
     "threads",
     "seed",
     "milp_time_s",
+    "connectivity",
 )
 
 

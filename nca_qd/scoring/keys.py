@@ -93,7 +93,8 @@ def repair_key(domain_name: str, layout: np.ndarray, options: Mapping[str, Any])
         "domain": domain_name,
         "shape": list(a.shape),
         "layout_sha256": hashlib.sha256(a.tobytes()).hexdigest(),
-        "options": {k: options[k] for k in sorted(options)},
+        # (connectivity is absent at its default, flow: recorded keys stay valid)
+        "options": {k: options[k] for k in sorted(options) if (k, options[k]) != ("connectivity", "flow")},
     }
     return _digest(spec)
 
