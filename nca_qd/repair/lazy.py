@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import highspy
 import numpy as np
 
-from nca_qd.layouts.rules import Rules
+from nca_qd.layouts.rules import Rules, dilate
 from nca_qd.repair.milp import _layout_of, distance_bound, window_model
 from nca_qd.repair.validator import is_valid
 
@@ -82,20 +82,36 @@ def lazy_repair(
     n_frac = int((~integral[: g.n_x].reshape(g.n, g.K)).any(axis=1).sum())
     t1 = time.perf_counter()
     if n_frac:
-        # RENS: the integral columns fixed at their values, the MILP over the rest
-        fixed = np.round(values)
-        n = len(values)
-        hs.changeColsBounds(
-            n, np.arange(n, dtype=np.int32), np.where(integral, fixed, 0.0), np.where(integral, fixed, 1.0)
-        )
+        # RENS: the cells the LP left integral fixed at their tiles, the MILP over the rest;
+        # when that has no solution (the fixed part leaves the others no valid choice), the
+        # cells next to them are freed too, then those two steps away (as :mod:`.rounding`)
         hs.setOptionValue("solve_relaxation", False)
         hs.setOptionValue("mip_max_nodes", int(max_nodes))
         hs.setOptionValue("mip_rel_gap", 0.0)
         hs.setOptionValue("mip_abs_gap", 0.999)
-        hs.setOptionValue("time_limit", max(0.05, float(time_limit) - lp_s))
         hs.changeColsIntegrality(g.n_x, np.arange(g.n_x, dtype=np.int32), integrality[: g.n_x])
-        hs.run()
-        if hs.getInfo().primal_solution_status != 2:  # kSolutionStatusFeasible
+        frac_cells = np.zeros(rules.shape, dtype=bool)
+        for i in np.flatnonzero((~integral[: g.n_x].reshape(g.n, g.K)).any(axis=1)):
+            frac_cells[g.cells[i]] = True
+        lp_values = np.round(values)
+        found = False
+        for radius in (0, 1, 2):
+            free_cells = dilate(frac_cells, radius) if radius else frac_cells
+            free_cols = np.repeat([free_cells[r, c] for r, c in g.cells], g.K)
+            hs.changeColsBounds(
+                g.n_x,
+                np.arange(g.n_x, dtype=np.int32),
+                np.where(free_cols, 0.0, lp_values[: g.n_x]),
+                np.where(free_cols, 1.0, lp_values[: g.n_x]),
+            )
+            hs.setOptionValue("time_limit", max(0.05, float(time_limit) - (time.perf_counter() - t0)))
+            hs.run()
+            if hs.getInfo().primal_solution_status == 2:  # kSolutionStatusFeasible
+                found = True
+                break
+            if hs.getModelStatus() != highspy.HighsModelStatus.kInfeasible:
+                break  # out of nodes or time without a solution: wider would only be harder
+        if not found:
             return LazyResult("no_rounding", None, bound, lp_s, time.perf_counter() - t1, n_frac)
         values = np.asarray(hs.getSolution().col_value)
     layout, _ = _layout_of(values, layout_in, g.cells, layout_in, rules, g.n_x, g.K)
