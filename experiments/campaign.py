@@ -31,11 +31,17 @@ from typing import Any
 
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
-from experiments.cli import CONF_DIR, RESUME_HINT, compose_config, main_guard
+from experiments.cli import CONF_DIR, compose_config, main_guard
 from experiments.evaluate import main as evaluate_main
 from experiments.run import EXIT_LEG_ENDED
 from experiments.run import main as run_main
 from nca_qd.errors import NcaQdError
+
+# What Ctrl-C or SIGTERM keeps: a search's last checkpoint, an evaluation's finished runs.
+INTERRUPTED = (
+    "the running arm's last checkpoint and its evaluation's finished runs are kept; "
+    "go on with the same experiments.campaign command"
+)
 
 # A search is not started or resumed with less than this left of the call's time (its first
 # iteration alone would overrun).
@@ -228,4 +234,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    main_guard(main, RESUME_HINT)()
+    main_guard(main, INTERRUPTED)()

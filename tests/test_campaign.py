@@ -135,3 +135,22 @@ def test_a_plans_evaluation_may_not_set_where_it_writes(tmp_path):
     bad.write_text("root: x\narms:\n  a: [seed=0]\nevaluate: T=30\n")
     with pytest.raises(NcaQdError, match="evaluate must be a list of key=value"):
         campaign.main([f"plan={bad}"])
+
+
+def test_an_interrupted_campaign_says_to_call_it_again(capsys, monkeypatch):
+    """Ctrl-C or SIGTERM in a campaign (in a search or an evaluation) exits 130 with the way
+    on: the same campaign command, not a search's resume= (an evaluation has no checkpoint)."""
+    import sys
+
+    from experiments import campaign
+    from experiments.cli import main_guard
+
+    def interrupted(argv):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sys, "argv", ["campaign", "plan=warehouse_even_qd"])
+    with pytest.raises(SystemExit) as exc:
+        main_guard(interrupted, campaign.INTERRUPTED)()
+    err = capsys.readouterr().err
+    assert exc.value.code == 130
+    assert "experiments.campaign" in err and "resume=" not in err

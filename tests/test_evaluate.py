@@ -988,3 +988,35 @@ def test_ctrl_c_during_the_screen_stops_the_exact_runs_at_once(monkeypatch):
             progress=False,
         )
     assert backend.aborted.is_set()
+
+
+def test_a_signal_during_a_screened_batch_waits_until_its_runs_are_recorded(tmp_path, monkeypatch):
+    """Ctrl-C (or SIGTERM, a campaign's deadline) arriving while a batch is screened stops the
+    evaluation once the batch's runs are in the record file: the next call reuses them."""
+    import os
+    import signal
+
+    from nca_qd.evaluation import runs as runs_module
+    from nca_qd.evaluation.store import ScreenRunStore
+    from nca_qd.io import rows_to_array
+    from nca_qd.layouts.warehouse import TILES
+
+    def batch_then_interrupted(group, *args, **kwargs):
+        os.kill(os.getpid(), signal.SIGINT)  # arrives during the batch
+        return [[RunOutcome("screen", s, 0.25, True, 20, False, 0.0) for s in range(2)] for _ in group]
+
+    monkeypatch.setattr(runs_module, "screen_group", batch_then_interrupted)
+    layout = rows_to_array(HUMAN_9x14, TILES)
+    lay = ev.EvalLayout("human@9x14", "human", "human", "9x14", "train", layout)
+    cells = {("human@9x14", 4): ev.Request("cell", "human@9x14", 4, 2, 0)}
+    store = ScreenRunStore(tmp_path)
+    args = (cells, {lay.key: lay}, "warehouse_even", TILES, 20, 0, None)
+    settings = (ExactSettings(20, None, 10, 5, {}), ev.ScreenSettings("all", 5, 17.0, None, True))
+    with pytest.raises(KeyboardInterrupt):
+        runs_module.simulate_cells(*args, *settings, progress=False, screen_store=store)
+    store.pack()
+    monkeypatch.setattr(runs_module, "screen_group", lambda *a, **k: pytest.fail("screened again"))
+    again = runs_module.simulate_cells(
+        *args, *settings, progress=False, screen_store=ScreenRunStore(tmp_path)
+    )
+    assert [o.throughput for o in again[("human@9x14", 4, "screen")]] == [0.25, 0.25]

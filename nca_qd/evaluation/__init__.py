@@ -191,7 +191,7 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
             screen_store,
         )
     except BaseException:  # Ctrl-C, SIGTERM, a campaign's leg: the records packed to ship
-        backend.close()
+        # (before the backend closes, which may wait for a running job)
         for st in (repair_store, store, screen_store):
             if st is not None:
                 st.pack()

@@ -24,6 +24,7 @@ from nca_qd.evaluation.plan import ScreenSettings
 from nca_qd.evaluation.records import EvalLayout, Request, Results, format_value, size_str
 from nca_qd.evaluation.stats import run_stats
 from nca_qd.evaluation.store import ExactRunStore, ScreenRunStore
+from nca_qd.interrupts import deferred_interrupts
 from nca_qd.scoring.jobs import ExactSettings, RunOutcome, exact_job
 from nca_qd.scoring.keys import exact_run_key, screen_run_key
 
@@ -164,12 +165,15 @@ def _screen_cells(
                     known[c.layout] = [o for o in outs if o is not None]
                     reused += len(outs)
         todo = [c for c in group if c.layout not in known]
-        fresh = screen_group(todo, rows, scenario, n, T, seed0, screen) if todo else []
-        for c, outs in zip(todo, fresh):
-            if store is not None:
-                for o in outs:
-                    store.add(key_of(c, o.seed), o)
-            known[c.layout] = outs
+        # a batch is minutes of one JAX call at 101x102: an interruption waits until its runs
+        # are recorded, instead of dropping them
+        with deferred_interrupts():
+            fresh = screen_group(todo, rows, scenario, n, T, seed0, screen) if todo else []
+            for c, outs in zip(todo, fresh):
+                if store is not None:
+                    for o in outs:
+                        store.add(key_of(c, o.seed), o)
+                known[c.layout] = outs
         for c in group:  # in the group's order, reused or not
             results[(c.layout, n, "screen")] = known[c.layout]
         bar.update(len(group))
