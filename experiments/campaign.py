@@ -9,9 +9,12 @@ from where the last stopped: a finished arm is skipped, a started one resumed
 (``experiments.run resume=``), the next one started, each with what is left of this call's
 ``leg_seconds``. Where the plan names ``evaluate: [overrides]``, a finished arm is then
 evaluated (``experiments.evaluate run_dir=<root>/<arm> <overrides>``, into
-``<root>/<arm>/evaluation``) before the next arm starts: every arm with the same protocol, and
-the comparison's tables need each arm's ``evaluation/summary.csv``. An arm evaluated before the
-plan's ``evaluate:`` changed is evaluated again (its records serve what did not change). An
+``<root>/<arm>/evaluation``) before the next arm starts: every arm with the same protocol (plus
+its own ``evaluate_arms: {arm: [overrides]}``, if any), and the comparison's tables need each
+arm's ``evaluation/summary.csv``. The other arms' evaluation records serve an arm's identical
+runs (``records_from``: the human baselines are simulated once for the whole comparison). An
+arm evaluated before the plan's evaluate overrides changed is evaluated again (its records
+serve what did not change). An
 evaluation cut by the call's time keeps its finished runs (``evaluation/*.jsonl``) and the next
 call goes on from them.
 Exit 0 when every arm has finished (and been evaluated), 75 when the time ran out first (call
@@ -54,9 +57,11 @@ def _overrides(path: Path, what: str, overrides: Any) -> list[str]:
     return [str(o) for o in overrides]
 
 
-def load_plan(name: str) -> tuple[Path, list[str], dict[str, list[str]], list[str] | None]:
-    """``(root, common overrides, {arm: overrides}, evaluate overrides or None)`` of a plan,
-    checked."""
+def load_plan(name: str) -> tuple[Path, list[str], dict[str, list[str]], dict[str, list[str]] | None]:
+    """``(root, common overrides, {arm: overrides}, {arm: evaluate overrides} or None)`` of a
+    plan, checked. An arm's evaluate overrides are the plan's ``evaluate:`` followed by its own
+    ``evaluate_arms: {arm: [...]}``, if any (an arm that needs less of the protocol: the
+    comparison's curves are the α arms')."""
     path = Path(name) if name.endswith((".yaml", ".yml")) else CONF_DIR / "campaign" / f"{name}.yaml"
     if not path.is_file():
         raise NcaQdError(f"plan={name}: no such plan ({path})")
@@ -70,10 +75,19 @@ def load_plan(name: str) -> tuple[Path, list[str], dict[str, list[str]], list[st
         if any(o.startswith(("run_dir=", "resume=", "leg_seconds=")) for o in [*common, *arms[str(arm)]]):
             raise NcaQdError(f"{path}: run_dir, resume and leg_seconds are the campaign's to set")
     evaluate = None
+    extra = raw.get("evaluate_arms")
+    if extra is not None and raw.get("evaluate") is None:
+        raise NcaQdError(f"{path}: evaluate_arms adds to evaluate: give evaluate: [overrides] too")
+    if extra is not None and (not isinstance(extra, DictConfig) or set(map(str, extra)) - set(arms)):
+        raise NcaQdError(f"{path}: evaluate_arms must map arms of the plan to lists of key=value")
     if raw.get("evaluate") is not None:
-        evaluate = _overrides(path, "evaluate", raw.evaluate)
-        if any(o.startswith(("run_dir=", "out=")) for o in evaluate):
-            raise NcaQdError(f"{path}: the evaluation's run_dir and out are the campaign's to set")
+        shared = _overrides(path, "evaluate", raw.evaluate)
+        own = {str(a): _overrides(path, f"evaluate_arms.{a}", o) for a, o in (extra or {}).items()}
+        evaluate = {arm: shared + own.get(arm, []) for arm in arms}
+        if any(o.startswith(("run_dir=", "out=", "records_from=")) for e in evaluate.values() for o in e):
+            raise NcaQdError(
+                f"{path}: the evaluation's run_dir, out and records_from are the campaign's to set"
+            )
     return Path(str(raw.root)), [str(c) for c in common], arms, evaluate
 
 
@@ -128,12 +142,27 @@ def _deadline(seconds: float | None) -> Iterator[None]:
         signal.signal(signal.SIGALRM, old)
 
 
-def _evaluate(arm: str, run_dir: Path, overrides: list[str], left: float | None) -> int:
-    """Evaluate a finished arm within ``left`` seconds: 0 when done, 75 when cut."""
+def _shared_records(run_dir: Path, arms: list[str]) -> list[str]:
+    """``records_from=[...]``: the other ``arms``' evaluation folders (those that exist), whose
+    records serve this arm's identical runs: the human baselines are the same layouts at the
+    same seeds in every arm, so they are simulated once for the whole comparison."""
+    folders = [
+        str(run_dir.parent / a / "evaluation")
+        for a in arms
+        if run_dir.parent / a != run_dir and (run_dir.parent / a / "evaluation").is_dir()
+    ]
+    return [f"records_from=[{','.join(repr(f) for f in folders)}]"] if folders else []
+
+
+def _evaluate(
+    arm: str, run_dir: Path, overrides: list[str], left: float | None, arms: list[str] | None = None
+) -> int:
+    """Evaluate a finished arm within ``left`` seconds (drawing on the other ``arms``'
+    records): 0 when done, 75 when cut."""
     print(f"{arm}: evaluating ({' '.join(overrides) or 'the defaults'})", flush=True)
     try:
         with _deadline(left):
-            code = evaluate_main([f"run_dir={run_dir}", *overrides])
+            code = evaluate_main([f"run_dir={run_dir}", *overrides, *_shared_records(run_dir, arms or [])])
     except LegEnded:
         print(f"{arm}: evaluation cut by this call's time; its finished runs are kept", flush=True)
         return EXIT_LEG_ENDED
@@ -185,7 +214,7 @@ def main(argv: list[str]) -> int:
         for arm in arms:
             line = _status_line(arm, progress(root / arm))
             if evaluate is not None and progress(root / arm)["state"] == "finished":
-                if evaluated(root / arm, evaluate):
+                if evaluated(root / arm, evaluate[arm]):
                     line += ", evaluated"
                 elif evaluated(root / arm):
                     line += ", evaluated, not yet with the plan's evaluate settings (next call)"
@@ -197,7 +226,7 @@ def main(argv: list[str]) -> int:
     for arm, overrides in arms.items():
         run_dir = root / arm
         state = progress(run_dir)
-        to_evaluate = evaluate is not None and not evaluated(run_dir, evaluate)
+        to_evaluate = evaluate is not None and not evaluated(run_dir, evaluate[arm])
         if state["state"] == "finished" and not to_evaluate:
             continue
         left = None if end is None else end - time.monotonic()
@@ -206,7 +235,7 @@ def main(argv: list[str]) -> int:
             return EXIT_LEG_ENDED
         if state["state"] == "finished":
             assert evaluate is not None
-            code = _evaluate(arm, run_dir, evaluate, left)
+            code = _evaluate(arm, run_dir, evaluate[arm], left, list(arms))
             if code != 0:
                 return code
             continue
@@ -226,7 +255,7 @@ def main(argv: list[str]) -> int:
             if left is not None and left < MIN_LEG_S:
                 print(f"{arm}: its evaluation is left for the next call")
                 return EXIT_LEG_ENDED
-            code = _evaluate(arm, run_dir, evaluate, left)
+            code = _evaluate(arm, run_dir, evaluate[arm], left, list(arms))
             if code != 0:
                 return code
     print(f"every arm of {cfg.plan} has finished" + (" and been evaluated" if evaluate is not None else ""))

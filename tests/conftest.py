@@ -79,3 +79,14 @@ def slow_clock(monkeypatch):
             monkeypatch.setattr(module, "time", SlowClock)
 
     return slow
+
+
+@pytest.fixture
+def ctrl_c_raises():
+    """Ctrl-C raises KeyboardInterrupt in the test, as in a fresh process (an earlier test's Dask
+    client may have left SIGINT ignored); the handler before it is restored after."""
+    import signal
+
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, old)

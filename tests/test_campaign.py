@@ -130,7 +130,7 @@ def test_a_plans_evaluation_may_not_set_where_it_writes(tmp_path):
 
     bad = tmp_path / "bad.yaml"
     bad.write_text("root: x\narms:\n  a: [seed=0]\nevaluate: [out=elsewhere]\n")
-    with pytest.raises(NcaQdError, match="run_dir and out are the campaign's"):
+    with pytest.raises(NcaQdError, match="run_dir, out and records_from are the campaign's"):
         campaign.main([f"plan={bad}"])
     bad.write_text("root: x\narms:\n  a: [seed=0]\nevaluate: T=30\n")
     with pytest.raises(NcaQdError, match="evaluate must be a list of key=value"):
@@ -154,3 +154,50 @@ def test_an_interrupted_campaign_says_to_call_it_again(capsys, monkeypatch):
     err = capsys.readouterr().err
     assert exc.value.code == 130
     assert "experiments.campaign" in err and "resume=" not in err
+
+
+def test_an_arms_evaluation_draws_on_the_other_arms_records(tmp_path, monkeypatch):
+    """The campaign hands each evaluation the other arms' evaluation folders (records_from),
+    through the command line as a user would type it: the human baselines, the same runs in
+    every arm, are simulated once for the comparison."""
+    from experiments import campaign
+    from experiments.cli import compose_config
+
+    root = tmp_path / "root with space"
+    for arm in ("a_s0", "b_s0", "c_s0", "not_an_arm"):
+        (root / arm).mkdir(parents=True)
+    for arm in ("a_s0", "c_s0", "not_an_arm"):
+        (root / arm / "evaluation").mkdir()
+    arms = ["a_s0", "b_s0", "c_s0"]
+    seen = []
+    monkeypatch.setattr(campaign, "evaluate_main", lambda argv: seen.append(argv) or 0)
+    assert campaign._evaluate("b_s0", root / "b_s0", ["T=30"], None, arms) == 0
+    cfg = compose_config("evaluate", seen[0])
+    assert list(cfg.records_from) == [str(root / "a_s0" / "evaluation"), str(root / "c_s0" / "evaluation")]
+    assert cfg.T == 30 and cfg.run_dir == str(root / "b_s0")
+    seen.clear()
+    assert campaign._evaluate("a_s0", root / "a_s0", [], None, arms) == 0  # not its own folder
+    assert list(compose_config("evaluate", seen[0]).records_from) == [str(root / "c_s0" / "evaluation")]
+
+
+def test_an_arm_may_add_to_the_plans_evaluation(tmp_path):
+    """evaluate_arms: an arm's own overrides after the plan's evaluate (the MAP-Elites and
+    CMA-ES arms need no curves); only for arms of the plan, and only beside evaluate."""
+    from experiments import campaign
+
+    plan = tmp_path / "plan.yaml"
+    plan.write_text(
+        "root: x\narms:\n  a: [seed=0]\n  b: [seed=1]\nevaluate: [T=30]\n"
+        "evaluate_arms:\n  b: ['sweep.eval.agents=[]', exact.sweep_eval=0]\n"
+    )
+    _, _, _, evaluate = campaign.load_plan(str(plan))
+    assert evaluate == {"a": ["T=30"], "b": ["T=30", "sweep.eval.agents=[]", "exact.sweep_eval=0"]}
+    for bad, match in (
+        ("evaluate: [T=30]\nevaluate_arms:\n  c: [T=40]\n", "must map arms of the plan"),
+        ("evaluate_arms:\n  a: [T=40]\n", "adds to evaluate"),
+        ("evaluate: [T=30]\nevaluate_arms:\n  a: T=40\n", "must be a list of key=value"),
+        ("evaluate: [T=30]\nevaluate_arms:\n  a: ['records_from=[x]']\n", "records_from are the campaign's"),
+    ):
+        plan.write_text("root: x\narms:\n  a: [seed=0]\n" + bad)
+        with pytest.raises(NcaQdError, match=match):
+            campaign.load_plan(str(plan))

@@ -990,6 +990,7 @@ def test_ctrl_c_during_the_screen_stops_the_exact_runs_at_once(monkeypatch):
     assert backend.aborted.is_set()
 
 
+@pytest.mark.usefixtures("ctrl_c_raises")
 def test_a_signal_during_a_screened_batch_waits_until_its_runs_are_recorded(tmp_path, monkeypatch):
     """Ctrl-C (or SIGTERM, a campaign's deadline) arriving while a batch is screened stops the
     evaluation once the batch's runs are in the record file: the next call reuses them."""
@@ -1020,3 +1021,52 @@ def test_a_signal_during_a_screened_batch_waits_until_its_runs_are_recorded(tmp_
         *args, *settings, progress=False, screen_store=ScreenRunStore(tmp_path)
     )
     assert [o.throughput for o in again[("human@9x14", 4, "screen")]] == [0.25, 0.25]
+
+
+def test_another_folders_records_serve_identical_runs_and_are_copied_not_moved(tmp_path):
+    """records_from: a run or repair recorded in another evaluation folder (another arm's: the
+    same human layout at the same seed) serves this one; once used it is in this folder's own
+    file (the folder stands alone), the other folder is not written, and what was not used is
+    neither copied nor moved to this folder's superseded file."""
+    from nca_qd.evaluation.store import ExactRunStore, RepairStore, ScreenRunStore
+    from nca_qd.scoring.jobs import RepairOutcome
+
+    other, here = tmp_path / "arm_a" / "evaluation", tmp_path / "arm_b" / "evaluation"
+    tasks = np.arange(40, dtype=np.int32) % 3
+    a = ExactRunStore(other)
+    a.add("human@101x102 seed 0", RunOutcome("rhcr", 0, 0.3, False, 200, False, 90.0, None, tasks, None))
+    a.add("nca of arm a", RunOutcome("rhcr", 0, 16.0, True, 5000, False, 150.0))
+    a.pack()
+    s = ScreenRunStore(other)
+    s.add("human screened", RunOutcome("screen", 1, 0.2, False, 100, False, 0.1))
+    s.pack()
+    r = RepairStore(other)
+    r.add("repair", RepairOutcome(np.zeros((3, 4), dtype=np.int32), "optimal", 0.9, 2, 0.1))
+    r.pack()
+    before = {p: p.read_bytes() for p in other.iterdir()}
+
+    b = ExactRunStore(here, [other])
+    assert len(b) == 0  # its own records: none yet
+    got = b.get("human@101x102 seed 0", need_detail=True, need_visits=False)
+    assert got is not None and (got.throughput, got.stop_time) == (0.3, 200)
+    np.testing.assert_array_equal(got.tasks_per_step, tasks)
+    assert b.get("not recorded anywhere", False) is None
+    assert ScreenRunStore(here, [other]).get("human screened", False) is not None
+    rep = RepairStore(here, [other]).get("repair")
+    assert rep is not None and rep.hamming == 2
+    assert b.prune() == 0  # only the record it used is in its file; nothing superseded
+    assert [x["key"] for x in record_lines(here, "exact_runs")] == ["human@101x102 seed 0"]
+    assert not (here / "exact_runs.superseded.jsonl").exists()
+    assert {p: p.read_bytes() for p in other.iterdir()} == before
+    alone = ExactRunStore(here)  # without records_from: the copy serves
+    assert alone.get("human@101x102 seed 0", True, False) is not None
+
+
+def test_records_from_must_name_folders(tmp_path):
+    from nca_qd.evaluation.plan import records_from
+
+    assert records_from(None) == [] and records_from([str(tmp_path)]) == [str(tmp_path)]
+    with pytest.raises(NcaQdError, match="is not a folder"):
+        records_from([str(tmp_path / "missing")])
+    with pytest.raises(NcaQdError, match="must be a list"):
+        records_from(str(tmp_path))

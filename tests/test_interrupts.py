@@ -11,6 +11,11 @@ import pytest
 from nca_qd.interrupts import deferred_interrupts
 
 
+@pytest.fixture(autouse=True)
+def _ctrl_c(ctrl_c_raises):
+    """Every test here: Ctrl-C raises KeyboardInterrupt (conftest.py)."""
+
+
 def test_ctrl_c_and_sigterm_act_after_the_block_not_inside_it():
     done = []
     for sig in (signal.SIGINT, signal.SIGTERM):

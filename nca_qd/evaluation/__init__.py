@@ -145,7 +145,8 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
     tiles = domain.layout_tiles
     backend = make_backend(ecfg.get("eval"))  # an unreachable scheduler fails here, early
     selection: Selection | None = None
-    repair_store = RepairStore(out) if plan.repair_reuse else None
+    also = ecfg["records_from"]  # other folders' records serve identical runs and repairs
+    repair_store = RepairStore(out, also) if plan.repair_reuse else None
     store: ExactRunStore | None = None
     screen_store: ScreenRunStore | None = None
 
@@ -170,8 +171,8 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
         requests = plan.requests(layouts)
         check_agents(layouts, requests, name, tiles)
         cells = merge_requests(requests)
-        store = ExactRunStore(out) if plan.exact_reuse else None
-        screen_store = ScreenRunStore(out) if plan.screen.reuse else None
+        store = ExactRunStore(out, also) if plan.exact_reuse else None
+        screen_store = ScreenRunStore(out, also) if plan.screen.reuse else None
         if plan.screen.where == "rest":
             for c in cells.values():
                 if c.exact_runs > 0:

@@ -18,6 +18,20 @@ from nca_qd.layouts import get_layout
 from nca_qd.scoring.jobs import ExactSettings
 
 
+def records_from(value: Any) -> list[str]:
+    """``records_from``: a list of existing folders (one clear error otherwise)."""
+    from pathlib import Path
+
+    if value is None:
+        return []
+    if isinstance(value, str) or not isinstance(value, Sequence):
+        raise NcaQdError(f"records_from must be a list of evaluation folders, got {value!r}")
+    for folder in value:
+        if not isinstance(folder, str) or not Path(folder).is_dir():
+            raise NcaQdError(f"records_from: {folder!r} is not a folder")
+    return [str(f) for f in value]
+
+
 def validated(ecfg: Mapping[str, Any]) -> dict[str, Any]:
     """Plain copy of the config with its numbers checked (one clear error each)."""
     e = dict(ecfg)
@@ -58,6 +72,7 @@ def validated(ecfg: Mapping[str, Any]) -> dict[str, Any]:
     prune = e.setdefault("prune_records", True)
     if not isinstance(prune, bool):
         raise NcaQdError(f"prune_records must be true or false, got {prune!r}")
+    e["records_from"] = records_from(e.get("records_from"))
     from nca_qd.sim.rhcr import planner_options
 
     planner_options(e["exact"], "exact.")

@@ -25,6 +25,10 @@ the domain and every repair option, and a later evaluation reuses the recorded l
 checking it against the domain's rules) instead of repairing again: the same command goes on
 from the same layouts.
 
+Another folder's records may serve too (``records_from``: the other arms of a comparison, whose
+human baselines are the same runs): read, never written, and a record used is copied into
+this folder's file, so each folder stands alone.
+
 When an evaluation stops — finished, or cut by Ctrl-C, SIGTERM or a campaign's leg — each file's
 records are packed into ``<name>.jsonl.gz`` (gzip, one line per key) and the plain journal
 ``<name>.jsonl`` is removed; the next evaluation reads the packed file, then appends to a new
@@ -42,7 +46,7 @@ import logging
 import os
 import threading
 import zlib
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -110,10 +114,12 @@ class JsonlRecords:
     filename = FILENAME
     what = "recorded run(s)"
 
-    def __init__(self, out: Path):
+    def __init__(self, out: Path, also: Sequence[Path | str] = ()):
         self.path = Path(out) / self.filename
         self._runs: dict[str, dict[str, Any]] = {}
         self._spare: dict[str, dict[str, Any]] = {}  # the superseded file's records
+        # other folders' records (``also``: read, never written), for lookups only
+        self._borrowed: dict[str, dict[str, Any]] = {}
         self._used: set[str] = set()  # keys this evaluation found or added
         self._lock = threading.Lock()
         self._open_line = False  # the file ends inside a line (a write cut short)
@@ -126,6 +132,16 @@ class JsonlRecords:
             self._runs.update(journal)
         if self._runs:
             log.info("%s: %d %s", self.path.parent, len(self._runs), self.what)
+        for folder in also:
+            other = Path(folder) / self.filename
+            if other.resolve() == self.path.resolve():
+                continue
+            n = len(self._borrowed)
+            for path in (other.with_name(other.name + ".gz"), other):
+                if path.is_file():
+                    self._borrowed.update(self._read(path)[0])
+            if len(self._borrowed) > n:
+                log.info("%s: %d %s to draw on", folder, len(self._borrowed) - n, self.what)
 
     @property
     def packed_path(self) -> Path:
@@ -167,13 +183,17 @@ class JsonlRecords:
         return len(self._runs)
 
     def _find(self, key: str) -> dict[str, Any] | None:
-        """The record of ``key`` in the main file, else in the superseded one."""
-        rec = self._runs.get(key)
-        return self._spare.get(key) if rec is None else rec
+        """The record of ``key`` in the main file, else in the superseded one, else in another
+        folder's."""
+        for recs in (self._runs, self._spare, self._borrowed):
+            rec = recs.get(key)
+            if rec is not None:
+                return rec
+        return None
 
     def _use(self, key: str, rec: dict[str, Any]) -> None:
-        """Mark a found record as used by this evaluation; one from the superseded file goes
-        back into the main file."""
+        """Mark a found record as used by this evaluation; one from the superseded file or
+        another folder goes into the main file."""
         with self._lock:
             if key not in self._runs:
                 self._append(key, rec)
@@ -259,8 +279,8 @@ class RunStore(JsonlRecords):
 
     simulator = "rhcr"
 
-    def __init__(self, out: Path):
-        super().__init__(out)
+    def __init__(self, out: Path, also: Sequence[Path | str] = ()):
+        super().__init__(out, also)
         self._visits_wanted: set[str] = set()
         self._visits_unwanted: set[str] = set()
 
