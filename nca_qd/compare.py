@@ -214,8 +214,9 @@ def plot_curves(path: Path, summaries: Sequence[GroupSummary], points: int = 200
 def compare(paths: Iterable[str | Path], out: str | Path, name: str = "comparison") -> tuple[str, list[Path]]:
     """Aggregate the runs at ``paths`` into ``out``: ``<name>.md``, ``<name>.csv`` and
     ``<name>.png``; where runs hold an evaluation, the paper's tables 2, 3 and 5 too
-    (:mod:`nca_qd.compare_evaluation`, ``<name>_evaluation.csv``). Returns the Markdown and
-    the files written."""
+    (:mod:`nca_qd.compare_evaluation`, ``<name>_evaluation.csv``) and, where it has curves over
+    agent counts, figure 3 with its exact points (:mod:`nca_qd.compare_curves`,
+    ``<name>_agents.png``). Returns the Markdown and the files written."""
     if not name or Path(name).name != name or name.startswith("."):
         raise NcaQdError(f"name must be a plain file name stem (no folders), got {name!r}")
     curves = [read_run(p) for p in find_runs(paths)]
@@ -223,16 +224,24 @@ def compare(paths: Iterable[str | Path], out: str | Path, name: str = "compariso
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     table = table_markdown(summaries)
+    from nca_qd.compare_curves import curves_markdown, read_curves
+    from nca_qd.compare_curves import plot_curves as plot_agent_curves
     from nca_qd.compare_evaluation import read_arms, tables_markdown, write_scaling_csv
     from nca_qd.io import atomic_write_text
 
     files = [out / f"{name}.md", out / f"{name}.csv", out / f"{name}.png"]
-    arms = read_arms([(c.path, c.group[1], c.seed) for c in curves])
+    runs = [(c.path, c.group[1], c.seed) for c in curves]
+    arms = read_arms(runs)
     table += tables_markdown(arms)
+    agent_curves = read_curves(runs)
+    table += curves_markdown(agent_curves, f"{name}_agents.png")
     atomic_write_text(files[0], table)
     write_csv(files[1], summaries)
     plot_curves(files[2], summaries)
     if arms:
         files.append(out / f"{name}_evaluation.csv")
         write_scaling_csv(files[-1], arms)
+    if agent_curves:
+        files.append(out / f"{name}_agents.png")
+        plot_agent_curves(files[-1], agent_curves)
     return table, files

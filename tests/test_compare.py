@@ -145,3 +145,59 @@ def test_arms_with_an_evaluation_get_the_papers_tables_2_and_3(tmp_path):
     assert sum(line.startswith("| warehouse_even | human |") for line in scaling.splitlines()) == 1
     runtime = [line for line in runtime_part.splitlines() if "Hamming 120" in line]
     assert len(runtime) == 2 and "Δ 0.95" in runtime[0]
+
+
+CURVE_HEAD = (
+    "layout,kind,cell,size,which,n_agents,simulator,runs,completed,timed_out,errors,success_rate,"
+    "throughput_mean,throughput_se,ci95_low,ci95_high,throughput_success_mean,throughput_success_se,"
+    "sim_seconds_mean\n"
+)
+
+
+def _curve_row(kind, n, sim, success, thr, runs=10, which="eval"):
+    size = "101x102" if which == "eval" else "33x36"
+    figures = f"{success},{thr},0.1,{thr - 0.2},{thr + 0.2},,,1"
+    return f"{kind},{kind},7,{size},{which},{n},{sim},{runs},{runs},0,0,{figures}\n"
+
+
+def test_the_curves_over_agents_carry_their_exact_points_and_the_main_counts(tmp_path):
+    """Figure 3: each arm's screened curves drawn, and a table of every exact point beside the
+    screened figure at the same count — the curve's exact points and the main comparison's exact
+    runs at N_a_eval (summary.csv); the human layout once; arms without curves add nothing."""
+
+    def run(path, seed, alpha, curve=True):
+        path.mkdir(parents=True)
+        (path / "config.yaml").write_text(
+            f"seed: {seed}\nalpha: {alpha}\nalgo:\n  name: cma_mae\ndomain:\n  name: warehouse_even\n"
+            "  alpha: 5\n  measures:\n    names: [entropy, shelf_components]\n"
+        )
+        (path / "metrics.csv").write_text("iteration,evaluations,qd_score,coverage\n1,10000,20000,0.3\n")
+        (path / "evaluation").mkdir()
+        (path / "evaluation" / "summary.csv").write_text(
+            SUMMARY_HEAD
+            + _summary_row("eval", "nca", "rhcr", 0.9, 16.0, runs=50)
+            + _summary_row("eval", "human", "rhcr", 0.0, "", runs=50)
+        )
+        if curve:
+            (path / "evaluation" / "throughput_vs_agents_eval.csv").write_text(
+                CURVE_HEAD
+                + "".join(_curve_row("nca", n, "screen", 1.0, 0.01 * n, runs=20) for n in (1000, 1400, 1600))
+                + _curve_row("nca", 1000, "rhcr", 1.0, 11.5)
+                + _curve_row("nca", 1600, "rhcr", 0.1, 3.0 + seed)
+                + "".join(_curve_row("human", n, "screen", 0.0, 0.2, runs=20) for n in (1000, 1400, 1600))
+                + _curve_row("human", 1000, "rhcr", 0.0, 0.36)
+            )
+
+    run(tmp_path / "a5_s0", 0, 5)
+    run(tmp_path / "a0_s0", 0, 0)
+    run(tmp_path / "me", 0, 1, curve=False)
+    table, files = compare([tmp_path], tmp_path / "out", name="cmp")
+    assert (tmp_path / "out" / "cmp_agents.png") in files and files[-1].is_file()
+    part = table.split("## Throughput against agents")[1]
+    rows = [line for line in part.splitlines() if line.startswith("| S_eval")]
+    nca = [r for r in rows if "nca, cma_mae α=5 s0" in r]
+    assert [r.split(" | ")[2] for r in nca] == ["1000", "1400", "1600"]  # 1400: the main count
+    assert nca[1].endswith("| 50, 90 %, 16.00 ± 0.00 | 20, 100 %, 14.00 ± 0.10 |")
+    assert nca[2].endswith("| 10, 10 %, 3.00 ± 0.10 | 20, 100 %, 16.00 ± 0.10 |")
+    assert sum("nca, cma_mae α=0 s0" in r for r in rows) == 3 and not any("α=1" in r for r in rows)
+    assert sum("| human |" in r for r in rows) == 2  # one arm's: the same layout in every arm
