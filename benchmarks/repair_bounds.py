@@ -32,7 +32,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import breadth_first_order, maximum_flow
 
 from nca_qd.layouts.rules import Rules
-from nca_qd.repair.milp import distance_bound, window_model
+from nca_qd.repair.milp import _options, distance_bound, window_model
 
 _SCALE = 10_000  # max-flow capacities are integers: passable values in units of 1e-4
 _BIG = 2**30
@@ -47,10 +47,7 @@ def without_connectivity(
     model = window_model(current, layout_in, ~rules.fixed, rules, connectivity=False)
     assert model is not None
     hs, _, _ = model
-    hs.setOptionValue("time_limit", float(time_limit))
-    hs.setOptionValue("threads", 1)
-    hs.setOptionValue("mip_rel_gap", 0.0)
-    hs.setOptionValue("mip_abs_gap", 0.999)
+    _options(hs, time_limit, 1, 0, None, None, False, None, "simplex")  # the window solver's
     hs.run()
     info = hs.getInfo()
     ties = rules.tie_costs is not None

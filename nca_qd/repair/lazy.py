@@ -25,7 +25,7 @@ import highspy
 import numpy as np
 
 from nca_qd.layouts.rules import Rules, dilate
-from nca_qd.repair.milp import _layout_of, distance_bound, window_model
+from nca_qd.repair.milp import _layout_of, _options, distance_bound, window_model
 from nca_qd.repair.validator import is_valid
 
 # Simplex iterations of the rules-only LP (101x102 manufacturing: 12,900).
@@ -66,11 +66,10 @@ def lazy_repair(
     if model is None:
         return LazyResult("lp_limit", None, None, time.perf_counter() - t0, 0.0, 0)
     hs, g, integrality = model
-    hs.setOptionValue("threads", int(threads))
-    hs.setOptionValue("random_seed", int(seed))
-    hs.setOptionValue("time_limit", max(0.05, float(time_limit)))
+    # the window solver's limits, but HiGHS's own (dual) simplex: there is no valid layout to
+    # start a primal simplex from, as the flow's relaxation does
+    _options(hs, time_limit, threads, seed, None, None, False, iteration_limit, "simplex")
     hs.setOptionValue("solve_relaxation", True)
-    hs.setOptionValue("simplex_iteration_limit", int(iteration_limit))
     hs.run()
     lp_s = time.perf_counter() - t0
     if hs.getModelStatus() != highspy.HighsModelStatus.kOptimal:
@@ -87,8 +86,6 @@ def lazy_repair(
         # cells next to them are freed too, then those two steps away (as :mod:`.rounding`)
         hs.setOptionValue("solve_relaxation", False)
         hs.setOptionValue("mip_max_nodes", int(max_nodes))
-        hs.setOptionValue("mip_rel_gap", 0.0)
-        hs.setOptionValue("mip_abs_gap", 0.999)
         hs.changeColsIntegrality(g.n_x, np.arange(g.n_x, dtype=np.int32), integrality[: g.n_x])
         frac_cells = np.zeros(rules.shape, dtype=bool)
         for i in np.flatnonzero((~integral[: g.n_x].reshape(g.n, g.K)).any(axis=1)):
