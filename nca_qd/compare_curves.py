@@ -13,21 +13,17 @@ plot only: there are no numbers to set beside these.
 
 from __future__ import annotations
 
-import csv
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from nca_qd.compare_evaluation import num, read_csv
+
 CURVE = "evaluation/throughput_vs_agents_{which}.csv"
 PANELS = (("train", "S"), ("eval", "S_eval"))
 # Layout kinds drawn, in this order; the human layouts are the same in every arm: drawn once.
 KINDS = ("nca", "tiling", "human")
-
-
-def _csv(path: Path) -> list[dict[str, str]]:
-    with path.open(newline="") as fh:
-        return list(csv.DictReader(fh))
 
 
 def read_curves(runs: Sequence[tuple[Path, str, int]]) -> list[dict[str, Any]]:
@@ -38,12 +34,12 @@ def read_curves(runs: Sequence[tuple[Path, str, int]]) -> list[dict[str, Any]]:
     out = []
     for run_dir, algorithm, seed in runs:
         summary = Path(run_dir) / "evaluation" / "summary.csv"
-        main = _csv(summary) if summary.is_file() else []
+        main = read_csv(summary) if summary.is_file() else []
         for which, _ in PANELS:
             path = Path(run_dir) / CURVE.format(which=which)
             if not path.is_file():
                 continue
-            rows = [{**r, "which": which} for r in _csv(path)]
+            rows = [{**r, "which": which} for r in read_csv(path)]
             have = {(r["kind"], int(r["n_agents"]), r["simulator"]) for r in rows}
             first: set[str] = set()
             for r in main:
@@ -54,10 +50,6 @@ def read_curves(runs: Sequence[tuple[Path, str, int]]) -> list[dict[str, Any]]:
                     rows.append(dict(r))
             out += [{**r, "algorithm": algorithm, "seed": seed} for r in rows]
     return out
-
-
-def _f(value: str | None) -> float:
-    return float(value) if value not in (None, "") else math.nan
 
 
 def _label(r: Mapping[str, Any]) -> str:
@@ -113,9 +105,9 @@ def curves_markdown(rows: Sequence[Mapping[str, Any]], picture: str) -> str:
 
 
 def _point(r: Mapping[str, Any]) -> str:
-    m, se = _f(r["throughput_mean"]), _f(r["throughput_se"])
+    m, se = num(r["throughput_mean"]), num(r["throughput_se"])
     spread = "" if math.isnan(se) else f" ± {se:.2f}"
-    return f"{r['runs']}, {100 * _f(r['success_rate']):.0f} %, {m:.2f}{spread}"
+    return f"{r['runs']}, {100 * num(r['success_rate']):.0f} %, {m:.2f}{spread}"
 
 
 def plot_curves(path: Path, rows: Sequence[Mapping[str, Any]]) -> None:
@@ -134,16 +126,18 @@ def plot_curves(path: Path, rows: Sequence[Mapping[str, Any]]) -> None:
         colours: dict[str, Any] = {}
         for (label, sim), pts in sorted(series.items(), key=lambda kv: kv[0][1] != "screen"):
             x = [int(r["n_agents"]) for r in pts]
-            y = [_f(r["throughput_mean"]) for r in pts]
-            lo = [_f(r["ci95_low"]) for r in pts]
-            hi = [_f(r["ci95_high"]) for r in pts]
+            y = [num(r["throughput_mean"]) for r in pts]
+            lo = [num(r["ci95_low"]) for r in pts]
+            hi = [num(r["ci95_high"]) for r in pts]
             style = {"color": colours[label]} if label in colours else {}
             if sim == "screen":
                 line = ax.plot(x, y, label=f"{label} (screen)", lw=1.2, **style)[0]
                 colours.setdefault(label, line.get_color())
                 ax.fill_between(x, [max(v, 0.0) for v in lo], hi, alpha=0.15, color=line.get_color())
             else:
-                err = [[max(a - b, 0.0) for a, b in zip(y, lo)], [max(b - a, 0.0) for a, b in zip(y, hi)]]
+                # the interval's lower end clipped at 0, as the screened band is (no negative throughput)
+                down = [max(a - max(b, 0.0), 0.0) for a, b in zip(y, lo)]
+                err = [down, [max(b - a, 0.0) for a, b in zip(y, hi)]]
                 bar = ax.errorbar(x, y, yerr=err, fmt="o", ms=5, capsize=3, label=f"{label} (exact)", **style)
                 colours.setdefault(label, bar[0].get_color())
         ax.set_title(f"{size}: throughput against agents", fontsize=9)

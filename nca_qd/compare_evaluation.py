@@ -37,6 +37,12 @@ class Arm:
     seeds: dict[int, list[dict[str, str]]] = field(default_factory=dict)
 
 
+def read_csv(path: Path) -> list[dict[str, str]]:
+    """The rows of an evaluation's CSV file (summary, curves) as dicts of strings."""
+    with Path(path).open(newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
 def read_arms(runs: Sequence[tuple[Path, str, int]]) -> list[Arm]:
     """The arms of the runs (``(run_dir, algorithm label, seed)``) that hold an evaluation."""
     arms: dict[tuple[str, str], Arm] = {}
@@ -44,8 +50,7 @@ def read_arms(runs: Sequence[tuple[Path, str, int]]) -> list[Arm]:
         path = Path(run_dir) / SUMMARY
         if not path.is_file():
             continue
-        with path.open() as fh:
-            rows = list(csv.DictReader(fh))
+        rows = read_csv(path)
         if not rows:
             continue
         domain = rows[0]["domain"]
@@ -67,7 +72,8 @@ def _layout_row(rows: Sequence[Mapping[str, str]], kind: str, which: str) -> Map
     return next((r for r in rows if r["kind"] == kind and r["which"] == which), None)
 
 
-def _num(value: str | None) -> float:
+def num(value: str | None) -> float:
+    """A CSV cell as a float; an empty cell is NaN."""
     return float(value) if value not in (None, "") else math.nan
 
 
@@ -83,13 +89,13 @@ def scaling_cell(rows_by_seed: Sequence[Mapping[str, str] | None]) -> dict[str, 
     found = [r for r in rows_by_seed if r is not None and int(r["completed"] or 0) > 0]
     if not found:
         return {"runs": 0}
-    success = [_num(r["success_rate"]) for r in found]
+    success = [num(r["success_rate"]) for r in found]
     runs = [int(r["completed"]) for r in found]
     if len(found) == 1:
         r = found[0]
-        thr = (_num(r["throughput_success_mean"]), _num(r["throughput_success_se"]))
+        thr = (num(r["throughput_success_mean"]), num(r["throughput_success_se"]))
         return {"seeds": 1, "runs": runs[0], "success": (success[0], math.nan), "throughput": thr}
-    means = [_num(r["throughput_success_mean"]) for r in found]
+    means = [num(r["throughput_success_mean"]) for r in found]
     return {
         "seeds": len(found),
         "runs": min(runs),
@@ -172,7 +178,7 @@ def runtime_rows(arms: Sequence[Arm]) -> list[dict[str, Any]]:
                 ("similarity", "delta"),
                 ("hamming", "hamming"),
             ):
-                row[f"{key}_{name}"] = _mean_se([_num(r[col]) if r else math.nan for r in rows])
+                row[f"{key}_{name}"] = _mean_se([num(r[col]) if r else math.nan for r in rows])
         p = RUNTIME.get((arm.domain, arm.algorithm))
         row["paper"] = (
             f"{p.nca_s:g} s, {p.milp_s:,g} s, Δ {p.delta_s:.2f} / {p.nca_eval:g} s, {p.milp_eval:,g} s, "
