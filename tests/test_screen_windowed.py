@@ -118,9 +118,13 @@ def test_the_priority_order_decides_who_waits(order):
 
 
 def test_goal_beyond_the_window_heads_for_it():
-    grid = np.ones((3, 30), bool)
-    paths, stuck = plan_window(grid, [(1, 0)], [(1, 29)])
+    # a second agent walled off in row 4 (so that the call has two agents, as the other
+    # plan_window tests: one compiled program for all of them)
+    grid = np.ones((5, 30), bool)
+    grid[3] = False
+    paths, stuck = plan_window(grid, [(1, 0), (4, 0)], [(1, 29), (4, 0)])
     assert not stuck.any() and tuple(paths[0, -1]) == (1, 10)
+    assert (paths[1] == (4, 0)).all()
 
 
 def test_a_goal_done_inside_the_window_leads_on_to_the_next_one():
@@ -135,8 +139,11 @@ def test_a_goal_done_inside_the_window_leads_on_to_the_next_one():
 
 
 def test_congestion_stops_a_jammed_run_and_not_an_open_one():
-    corridor = ["weeeeeeeew"]  # 1-wide, every tile taken: nobody can ever move
-    res = simulate(corridor, "warehouse_even", 10, 30, 0, record_paths=True, planner=WIN)
+    # 1-wide, every tile taken: nobody can ever move (WAREHOUSE's shape and N agents, so the
+    # compiled program of the other runs serves)
+    corridor = ["w" + "e" * (len(WAREHOUSE[0]) - 2) + "w"] + ["@" * len(WAREHOUSE[0])] * (len(WAREHOUSE) - 1)
+    assert sum(r.count(".") + r.count("e") + r.count("w") for r in corridor) == N
+    res = simulate(corridor, "warehouse_even", N, T, 0, record_paths=True, planner=WIN)
     assert res.congested and not res.success and res.stop_time == 5  # the first check
     check_run(res, corridor)
     assert res.tasks_per_step[5:].sum() == 0
