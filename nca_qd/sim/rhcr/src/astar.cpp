@@ -15,7 +15,7 @@ bool SpaceTimeAStar::seen(int t, int gi, int cell, bool at_start) {
   const size_t slot = at_start ? goal_count_ + 1 : gi;
   const size_t idx = (static_cast<size_t>(t) * (goal_count_ + 2) + slot) * grid_.cells() + cell;
   if (visited_[idx] == visit_stamp_) return true;
-  visited_[idx] = visit_stamp_;
+  visited_[idx] = static_cast<uint8_t>(visit_stamp_);
   return false;
 }
 
@@ -42,7 +42,7 @@ bool SpaceTimeAStar::plan(const ReservationTable& rt, const AgentQuery& q, int* 
     visited_.assign(need, 0);
     visit_stamp_ = 0;
   }
-  if (++visit_stamp_ == 0) {
+  if (++visit_stamp_ == 256) {  // the epoch wrapped: really reset
     std::fill(visited_.begin(), visited_.end(), 0);
     visit_stamp_ = 1;
   }

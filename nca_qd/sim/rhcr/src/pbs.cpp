@@ -62,26 +62,37 @@ void WindowedPBS::build_nearby() {
     start_row_[a] = start_[a] / grid_.cols();
     start_col_[a] = start_[a] % grid_.cols();
   }
-  nearby_.resize(n_agents_);
-  close_.resize(n_agents_);
-  for (auto& list : nearby_) list.clear();
-  for (auto& list : close_) list.clear();
-  for (int a = 0; a < n_agents_; ++a)
-    for (int b = a + 1; b < n_agents_; ++b)
-      if (near(a, b, 2 * window_)) {
-        nearby_[a].push_back(b);
-        nearby_[b].push_back(a);
-        if (near(a, b, window_)) {
-          close_[a].push_back(b);
-          close_[b].push_back(a);
-        }
+  words_ = (n_agents_ + 63) / 64;
+  nearby_.assign(static_cast<size_t>(n_agents_) * words_, 0);
+  close_.assign(static_cast<size_t>(n_agents_) * words_, 0);
+  const int* rows = start_row_.data();
+  const int* cols = start_col_.data();
+  for (int a = 0; a < n_agents_; ++a) {
+    uint64_t* nb = nearby_.data() + static_cast<size_t>(a) * words_;
+    uint64_t* cl = close_.data() + static_cast<size_t>(a) * words_;
+    for (int w = 0; w < words_; ++w) {
+      uint64_t near_bits = 0, close_bits = 0;
+      const int end = std::min(64, n_agents_ - w * 64);
+      for (int j = 0; j < end; ++j) {
+        const int b = w * 64 + j;
+        const int d = std::abs(rows[a] - rows[b]) + std::abs(cols[a] - cols[b]);
+        near_bits |= static_cast<uint64_t>(d <= 2 * window_) << j;
+        close_bits |= static_cast<uint64_t>(d <= window_) << j;
       }
+      nb[w] = near_bits;
+      cl[w] = close_bits;
+    }
+    const uint64_t self = ~(uint64_t{1} << (a & 63));  // an agent is not its own neighbour
+    nb[a >> 6] &= self;
+    cl[a >> 6] &= self;
+  }
 }
 
 void WindowedPBS::conflicts_of(const Node& n, int agent, std::vector<Conflict>& out) const {
   Conflict c;
-  for (int b : nearby_[agent])
+  for_each_agent(nearby_, agent, n_agents_, [&](int b) {
     if (conflict_between(n, agent, b, c)) out.push_back(c);
+  });
 }
 
 // Does the path stay on `cell` from time 0 through t (and go on after t)?
@@ -92,9 +103,20 @@ bool WindowedPBS::waits_at_start(const int* p, int cell, int t) const {
 }
 
 // RHCR's choice of who gives way in each conflict (find_replan_agents).
-void WindowedPBS::add_replans(const Node& n, const std::vector<Conflict>& conflicts, ReplanSet& replan) {
+//
+// With a new edge (`lower` below `higher`, the child's one): the conflicts are its parent's,
+// every one of which gave nobody under the parent's order (a node is made consistent before it
+// is pushed: a conflict whose pair was ordered, or one of whose agents waited at its start,
+// had one agent replanned, which removed it). Paths are the parent's, so only a pair that the
+// new edge orders can give someone now: one agent at or below `lower`, the other at or above
+// `higher`. The others are skipped unread (same insertions, same order, less work).
+void WindowedPBS::add_replans(const Node& n, const std::vector<Conflict>& conflicts, ReplanSet& replan, int lower,
+                              int higher) {
+  auto low = [&](int x) { return x == lower || n.order.is_above(x, lower); };
+  auto high = [&](int y) { return y == higher || n.order.is_above(higher, y); };
   for (const Conflict& c : conflicts) {
     if (queued_[c.a1] || queued_[c.a2]) continue;  // replan.count(), without hashing
+    if (lower >= 0 && !((low(c.a1) && high(c.a2)) || (low(c.a2) && high(c.a1)))) continue;
     int who = -1;
     if (prioritize_start_ && waits_at_start(path(n, c.a1), c.v1, c.t)) {
       who = c.a2;
@@ -120,13 +142,12 @@ bool WindowedPBS::find_path(Node& n, int agent, const std::vector<AgentQuery>& q
     if (h != agent && near(agent, h, 2 * window_)) rt_.add_path(grid_, path(n, h));
   });
   if (prioritize_start_)
-    for (int i : close_[agent]) {
-      if (i >= n_planned) break;  // close_ is in increasing id
+    for_each_agent(close_, agent, n_planned, [&](int i) {
       const int* p = path(n, i);
       int leave = 1;
       while (leave <= window_ && p[leave] == p[0]) ++leave;
       rt_.add_wait(p[0], leave);
-    }
+    });
   std::vector<int>& buf = scratch_path_;
   buf.assign(window_ + 1, kAbsent);
   int cost = 0;
@@ -146,7 +167,7 @@ bool WindowedPBS::find_path(Node& n, int agent, const std::vector<AgentQuery>& q
 
 // RHCR's find_consistent_paths: replan `agent` (if >= 0), then whoever must give way, until
 // no ordered pair (or start waiter) conflicts; fails past five replans per touched agent.
-bool WindowedPBS::make_consistent(Node& n, int agent, const std::vector<AgentQuery>& queries) {
+bool WindowedPBS::make_consistent(Node& n, int agent, const std::vector<AgentQuery>& queries, int higher) {
   for (int a : n.touched) touched_flag_[a] = 1;
   // RHCR keeps the agents to replan in an unordered_set and always takes begin(): with
   // libstdc++ that is roughly the most recently added agent, not the smallest id. The same
@@ -156,7 +177,7 @@ bool WindowedPBS::make_consistent(Node& n, int agent, const std::vector<AgentQue
     replan.insert(agent);
     queued_[agent] = 1;
   }
-  add_replans(n, n.conflicts, replan);
+  add_replans(n, n.conflicts, replan, higher >= 0 ? agent : -1, higher);
   bool ok = true;
   size_t count = 0;
   std::vector<Conflict>& fresh = fresh_;
@@ -250,8 +271,9 @@ bool WindowedPBS::solve(const std::vector<AgentQuery>& queries, int executed_ste
   }
   Conflict c;
   for (int a = 0; a < n_agents_; ++a)
-    for (int b : nearby_[a])
+    for_each_agent(nearby_, a, n_agents_, [&](int b) {
       if (b > a && conflict_between(r, a, b, c)) r.conflicts.push_back(c);
+    });
   if (!make_consistent(r, -1, queries)) {
     repair(r, queries, executed_steps, rng, out);
     return false;
@@ -281,19 +303,40 @@ bool WindowedPBS::solve(const std::vector<AgentQuery>& queries, int executed_ste
     ++expanded;
     ++stats_.nodes_expanded;
 
+    // The best expanded node so far (latest first conflict, then smaller cost) keeps what a
+    // failed call's repair needs of it: its paths (and the two figures it is ranked by). The
+    // node itself is spent once its two children exist: the first gets a copy of it, the
+    // second its buffers.
+    if (!have_best || node->earliest > best.earliest ||
+        (node->earliest == best.earliest && node->total_cost < best.total_cost)) {
+      best.paths = node->paths;
+      best.earliest = node->earliest;
+      best.total_cost = node->total_cost;
+      have_best = true;
+    }
+    Node& parent = *node;
     std::unique_ptr<Node> children[2];
     for (int k = 0; k < 2; ++k) {
       const int lower = k == 0 ? conflict.a1 : conflict.a2;
       const int higher = k == 0 ? conflict.a2 : conflict.a1;
       std::unique_ptr<Node> child = take_node();
-      child->paths = node->paths;
-      child->cost = node->cost;
-      child->order.copy_from(node->order);
-      child->area = node->area;
+      if (k == 1) {
+        std::swap(child->paths, parent.paths);
+        std::swap(child->cost, parent.cost);
+        std::swap(child->area, parent.area);
+        std::swap(child->conflicts, parent.conflicts);
+        std::swap(child->order, parent.order);
+        child->order.make_room();
+      } else {
+        child->paths = parent.paths;
+        child->cost = parent.cost;
+        child->area = parent.area;
+        child->conflicts = parent.conflicts;
+        child->order.copy_from(parent.order);
+      }
       child->order.add_edge(lower, higher, row_);
-      child->conflicts = node->conflicts;
-      child->total_cost = node->total_cost;
-      if (!make_consistent(*child, lower, queries)) {
+      child->total_cost = parent.total_cost;
+      if (!make_consistent(*child, lower, queries, higher)) {
         recycle(std::move(child));
         continue;
       }
@@ -306,11 +349,6 @@ bool WindowedPBS::solve(const std::vector<AgentQuery>& queries, int executed_ste
         return true;
       }
       children[k] = std::move(child);
-    }
-    if (!have_best || node->earliest > best.earliest ||
-        (node->earliest == best.earliest && node->total_cost < best.total_cost)) {
-      std::swap(best, *node);  // the node keeps the old best's buffers for reuse
-      have_best = true;
     }
     recycle(std::move(node));
     if (children[0] && children[1]) {

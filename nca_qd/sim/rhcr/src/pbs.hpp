@@ -100,9 +100,11 @@ class WindowedPBS {
   bool conflict_between(const Node& n, int a1, int a2, Conflict& c) const;
   void conflicts_of(const Node& n, int agent, std::vector<Conflict>& out) const;
   bool waits_at_start(const int* p, int cell, int t) const;
-  void add_replans(const Node& n, const std::vector<Conflict>& conflicts, ReplanSet& replan);
+  void add_replans(const Node& n, const std::vector<Conflict>& conflicts, ReplanSet& replan, int lower = -1,
+                   int higher = -1);
   bool find_path(Node& n, int agent, const std::vector<AgentQuery>& queries, int n_planned);
-  bool make_consistent(Node& n, int agent, const std::vector<AgentQuery>& queries);
+  // `higher`: the agent the child's new edge put above `agent` (-1: the root, no new edge).
+  bool make_consistent(Node& n, int agent, const std::vector<AgentQuery>& queries, int higher = -1);
   const Conflict& choose_conflict(Node& n) const;
   static constexpr int64_t kClockEvery = 32;
   bool out_of_time(const PbsLimits& limits, int64_t expanded, int64_t expansions0, double cpu0) const;
@@ -121,14 +123,26 @@ class WindowedPBS {
   std::vector<char> touched_flag_;
   std::vector<char> queued_;  // mirrors make_consistent's set of agents to replan
   std::vector<int> start_;  // each agent's start cell in the current call
-  // Per agent, the other agents whose start cells lie within 2 * window (Manhattan) of its
-  // own, in increasing id: the only ones its windowed path can meet (see near()). Built once
-  // per call, it spares the conflict checks and reservations a scan over all agents.
-  std::vector<std::vector<int>> nearby_;
+  // Per agent, a bit row (words_ words) of the other agents whose start cells lie within
+  // 2 * window (Manhattan) of its own: the only ones its windowed path can meet (see near()).
+  // Built once per call (branch-free, a row per agent), visited in increasing id; it spares
+  // the conflict checks and reservations a scan over all agents.
+  std::vector<uint64_t> nearby_;
   // The same within `window` (whose start cells an agent's path can reach), and the start
   // cells' rows and columns.
-  std::vector<std::vector<int>> close_;
+  std::vector<uint64_t> close_;
+  int words_ = 0;
   std::vector<int> start_row_, start_col_;
+  // Calls f(b) for every b < limit whose bit is set in row `a` of `bits`, in increasing b.
+  template <class F>
+  void for_each_agent(const std::vector<uint64_t>& bits, int a, int limit, F&& f) const {
+    const uint64_t* row = bits.data() + static_cast<size_t>(a) * words_;
+    for (int w = 0; w < words_ && w * 64 < limit; ++w) {
+      uint64_t x = row[w];
+      if (limit - w * 64 < 64) x &= (uint64_t{1} << (limit - w * 64)) - 1;
+      for (; x; x &= x - 1) f(w * 64 + __builtin_ctzll(x));
+    }
+  }
   std::vector<uint64_t> cell_area_;  // the area bit of each cell
   uint64_t area_of(const int* p) const {
     uint64_t m = 0;

@@ -37,6 +37,9 @@ class PriorityOrder {
     stride_ = other.stride_;
   }
 
+  // Room for one more row (add_edge's) without reallocating.
+  void make_room() { rows_.reserve(rows_.size() + stride_); }
+
   // Is `higher` above `lower`?
   bool is_above(int lower, int higher) const {
     const int r = row_of_[lower], c = col_of_[higher];
