@@ -156,9 +156,10 @@ RESUME_HINT = "the last checkpoint is intact; resume with resume=<run dir>"
 
 
 def main_guard(body: Callable[[list[str]], int | None], on_interrupt: str = "") -> Callable[[], None]:
-    """Run ``body(argv)``; user errors (and running out of memory, which a map or agent count too
-    large for the machine causes) print one line to stderr and exit 2, Ctrl-C (or SIGTERM)
-    exits 130 with ``on_interrupt`` (what was kept, how to go on) in its line."""
+    """Run ``body(argv)``; user errors (a map too large for memory among them: the stages
+    refuse it from their estimates, nca_qd.memory, and an allocation that fails all the same
+    is caught here) print one line to stderr and exit 2, Ctrl-C (or SIGTERM) exits 130 with
+    ``on_interrupt`` (what was kept, how to go on) in its line."""
 
     def wrapped() -> None:
         logging.basicConfig(

@@ -22,6 +22,7 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from experiments.cli import check_writable, compose_config, main_guard, take_domain
+from nca_qd import memory
 from nca_qd.errors import NcaQdError
 from nca_qd.io import atomic_write_bytes, load_map
 from nca_qd.sim.scenario import Scenario, build_scenario, tiles_for
@@ -126,6 +127,13 @@ def main(argv: list[str]) -> int:
     mapfile = load_map(str(cfg.layout), tiles=tiles)
     scen = build_scenario(mapfile.rows, domain, n_agents=settings.agents, source=str(cfg.layout))
     seeds = list(range(first, first + n_runs))
+    if cfg.simulator == "rhcr":  # its runs in parallel threads, each with its distance tables
+        parallel = max(1, min(settings.threads, n_runs))
+        memory.check(
+            parallel * scen.simulation_bytes(settings.agents),
+            f"{parallel} exact simulation(s) at once of the {scen.shape[0]}x{scen.shape[1]} map {cfg.layout}",
+            hint="use fewer threads=, or a smaller map",
+        )
 
     results, recorded = [], {}
     for res in simulator(scen, settings, seeds):

@@ -15,6 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from nca_qd import memory
 from nca_qd.domains.base import Domain
 from nca_qd.errors import NcaQdError
 from nca_qd.interfaces import EvalBatch, HostEvaluator
@@ -62,6 +63,9 @@ def generate(
     """Generated regions ``[b, h, w]`` at the training or evaluation size (or any ``shape``)."""
     shape = shape or domain.gen_shape(which)
     n_iters = n_iters or domain.nca_iters(which)
+    batch = int(np.shape(solutions)[0])
+    what = f"growing {batch} layout(s) of {shape[0]}x{shape[1]}"
+    memory.check(memory.nca_bytes(batch, shape[0] * shape[1]), what)
     return np.asarray(generator.generate(solutions, domain.seed(shape), n_iters))
 
 

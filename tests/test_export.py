@@ -124,7 +124,9 @@ def test_uneven_tasks_favour_the_left_workstations():
         (["human=true", "domain=manufacturing", "rows=9", "cols=9", "out=x"], "draws warehouses"),
         (["human=true", "rows=3", "cols=20", "out=x"], "needs at least 5 rows"),
         (["layout=missing.json", "out=x"], "missing.json"),
-        (["human=true", "rows=2000000", "cols=2000000", "out=x"], "out of memory"),  # 4 TB of map
+        (["human=true", "rows=2000000", "cols=2000000", "out=x"], "too large for memory"),  # 4 TB of map
+        # 10^10 cells: numpy's allocation of it succeeded, and the command ran on for minutes
+        (["human=true", "rows=100000", "cols=100000", "out=x"], "too large for memory"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(args, message):

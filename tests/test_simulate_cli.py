@@ -117,6 +117,17 @@ def test_bad_input_is_one_line_exit_2(tmp_path, rows, args, message):
     assert proc.stdout == ""
 
 
+def test_a_map_too_large_for_memory_is_one_line_exit_2(tmp_path):
+    # 490,000 goal cells, each with a distance table of 490,000 cells: about 450 GiB
+    rows = ["w" + "e" * 698 + "w"] * 700
+    layout = write_map(tmp_path / "big.json", rows)
+    proc = run_cli(f"layout={layout}", "agents=2", "T=10", "seeds=1", cwd=tmp_path)
+    err = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2 and len(err) == 1, proc.stderr
+    assert "700x700 map" in err[0] and "too large for memory" in err[0] and "GiB needed" in err[0]
+    assert proc.stdout == ""
+
+
 def test_time_limit_says_timed_out(tmp_path):
     big = [row * 6 for row in WAREHOUSE] * 6
     layout = write_map(tmp_path / "big.json", big)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from nca_qd import memory
 from nca_qd.errors import NcaQdError
 from nca_qd.layouts.base import Construction, GoalKind, LayoutKind, TaskModel
 from nca_qd.layouts.rules import AdjacencyRule, CountRule, Rules
@@ -79,6 +80,7 @@ def human_layout(shape: tuple[int, int]) -> np.ndarray:
         raise NcaQdError(
             f"a human-designed warehouse needs at least 5 rows and {2 * FRAME + 1} columns, got {h}x{w}"
         )
+    memory.check(memory.human_bytes(h * w), f"a {h}x{w} human-designed warehouse")
     _, lay = frame((h, w))
     cols = np.arange(FRAME, w - FRAME)
     cols = cols[(cols - FRAME) % 11 != 10]

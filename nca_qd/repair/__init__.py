@@ -48,6 +48,7 @@ from typing import Any
 
 import numpy as np
 
+from nca_qd import memory
 from nca_qd.errors import NcaQdError
 from nca_qd.layouts import get_layout
 from nca_qd.layouts.rules import Rules
@@ -141,6 +142,7 @@ def repair(
     if connectivity not in CONNECTIVITY:
         raise NcaQdError(f"unknown connectivity {connectivity!r} (known: {', '.join(CONNECTIVITY)})")
     layout = np.asarray(layout, dtype=np.int32)
+    memory.check(memory.repair_bytes(layout.size), f"repairing a {layout.shape[0]}x{layout.shape[1]} layout")
     rules = make_rules(domain_name, layout.shape, n_shelves=n_shelves, n_agents=n_agents)
     if tie_break == "random":
         rules = dataclasses.replace(rules, tie_costs=tie_costs(layout, rules, seed))

@@ -62,6 +62,18 @@ class Scenario:
     def n_traversable(self) -> int:
         return int(self.traversable.sum())
 
+    @property
+    def n_goal_cells(self) -> int:
+        """Distinct cells any goal can be on (each gets a distance table in the simulators)."""
+        return int(np.unique(np.concatenate([c.cells for c in self.classes])).size)
+
+    def simulation_bytes(self, n_agents: int) -> int:
+        """Estimated peak memory of one exact simulation of this scenario (nca_qd.memory)."""
+        from nca_qd.memory import simulation_bytes
+
+        h, w = self.shape
+        return simulation_bytes(h * w, self.n_goal_cells, n_agents)
+
 
 def tiles_for(scenario: str) -> str:
     """The tile alphabet of a scenario's layouts."""

@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from nca_qd import memory
 from nca_qd.errors import NcaQdError
 from nca_qd.sim.result import RunResult
 from nca_qd.sim.scenario import Scenario, build_scenario
@@ -123,6 +124,8 @@ def simulate_scenario(
     unused; ``replan`` is the congestion rule's period, as in RHCR).
     """
     _check_params(scen, n_agents, T, window, replan, time_limit_s)
+    h, w = scen.shape
+    memory.check(scen.simulation_bytes(n_agents), f"an exact simulation of the {h}x{w} map {scen.name}")
     if planner not in PLANNERS:
         raise NcaQdError(f"planner must be one of {', '.join(PLANNERS)}, got {planner!r}")
     if plan_time_limit_s is not None and not plan_time_limit_s > 0:
