@@ -99,9 +99,9 @@ def plot_curves(
                         )
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
-    ax.set_title(
-        title + "\nscreen = JAX screening approximation (~25 % below RHCR); band/bars: 95 % CI", fontsize=8
-    )
+    screened = "screen" in _simulators(rows)
+    note = "screen = JAX screening approximation (~25 % below RHCR); " if screened else ""
+    ax.set_title(f"{title}\n{note}band/bars: 95 % CI", fontsize=8)
     _legend_note(ax)
     save_figure(fig, path)
 

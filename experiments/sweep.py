@@ -1,0 +1,231 @@
+"""Throughput against agent count for several layouts under one exact planner, resumable.
+
+    python -m experiments.sweep domain=warehouse_even layouts=[human.json,nca.json] \\
+        agents=[2500,5000,7500] seeds=10 planner=pibt T=5000 out=sweeps/league
+
+Runs every (layout, agent count, seed) that ``out`` does not hold yet, as
+``experiments.simulate`` would (same settings and defaults, simulate.yaml), and appends each
+run's line to ``<out>/<layout stem>_<agents>.jsonl`` the moment it ends: Ctrl-C or SIGTERM
+loses only the runs in flight, and the same command goes on from there (more seeds or more
+agent counts later extend the same folder). ``sweep_config.yaml`` pins the folder's settings
+and each layout's digest; a later call with other settings or a changed layout file is
+refused (one line, exit 2) rather than mixing runs. Then writes ``summary.csv`` (per layout and
+agent count: runs, success rate, throughput mean ± s.e. over all runs and over the runs that
+flowed, CPU seconds), ``summary.md`` and ``throughput_vs_agents.png``.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import json
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+from omegaconf import DictConfig, OmegaConf
+
+from experiments.cli import compose_config, main_guard, take_domain
+from experiments.simulate import SIMULATORS, RunSettings, _int
+from nca_qd import memory
+from nca_qd.errors import NcaQdError
+from nca_qd.io import atomic_write_text, load_map
+from nca_qd.sim.scenario import build_scenario, tiles_for
+
+# The settings a folder's runs share (anything else, e.g. threads, may change between calls).
+PINNED = (
+    "domain",
+    "T",
+    "simulator",
+    "window",
+    "replan",
+    "time_limit_s",
+    "planner",
+    "plan_time_limit_s",
+    "pbs_max_nodes",
+    "plan_max_expansions",
+    "prioritize_start",
+    "starts",
+    "screen_crowd_mean",
+)
+
+
+def _list(cfg: DictConfig, key: str) -> list:
+    value = cfg[key]
+    if OmegaConf.is_missing(cfg, key) or not OmegaConf.is_list(value) or len(value) == 0:
+        raise NcaQdError(f"{key} must be a non-empty list, e.g. {key}=[a,b]")
+    return list(value)
+
+
+def read_records(path: Path) -> dict[int, dict]:
+    """The runs recorded in one ``.jsonl`` file by seed (summary lines, as ``experiments.simulate``
+    prints them, and a last line cut short by a kill are skipped)."""
+    runs: dict[int, dict] = {}
+    if not path.is_file():
+        return runs
+    for line in path.read_text().splitlines():
+        try:
+            rec = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        if isinstance(rec, dict) and not rec.get("summary") and "seed" in rec:
+            runs[int(rec["seed"])] = rec
+    return runs
+
+
+def _append(path: Path, record: dict) -> None:
+    """One run's line, on disk before the next run starts."""
+    line = json.dumps(record) + "\n"
+    if path.is_file() and path.stat().st_size:
+        with open(path, "rb") as f:
+            f.seek(-1, os.SEEK_END)
+            if f.read(1) != b"\n":  # a line cut short by a kill: leave it, start a new one
+                line = "\n" + line
+    with open(path, "a") as f:
+        f.write(line)
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def _pin(out: Path, cfg: DictConfig, digests: dict[str, str]) -> None:
+    """Write or check ``sweep_config.yaml``: the folder's settings and its layouts' digests."""
+    settings = {k: (OmegaConf.to_container(cfg, resolve=True) or {}).get(k) for k in PINNED}
+    path = out / "sweep_config.yaml"
+    if path.is_file():
+        old = OmegaConf.to_container(OmegaConf.load(path)) or {}
+        assert isinstance(old, dict)
+        for k, v in settings.items():
+            if k in old.get("settings", {}) and old["settings"][k] != v:
+                raise NcaQdError(
+                    f"{out} holds runs with {k}={old['settings'][k]}, this call asks {k}={v}: "
+                    "use another out= (or the same settings)"
+                )
+        for stem, digest in digests.items():
+            had = old.get("layouts", {}).get(stem)
+            if had is not None and had != digest:
+                raise NcaQdError(f"{out} holds runs of another layout named {stem}: use another out=")
+        digests = {**old.get("layouts", {}), **digests}
+    atomic_write_text(path, OmegaConf.to_yaml(OmegaConf.create({"settings": settings, "layouts": digests})))
+
+
+def summarize_point(runs: list[dict]) -> dict:
+    """One (layout, agents) point: success rate and throughput over all runs and flowing ones."""
+    thr = np.array([r["throughput"] for r in runs], dtype=float)
+    ok = np.array([bool(r["success"]) for r in runs])
+    n = len(thr)
+    se = float(thr.std(ddof=1) / math.sqrt(n)) if n > 1 else float("nan")
+    flow = thr[ok]
+    return {
+        "runs": n,
+        "success_rate": float(ok.mean()),
+        "throughput_mean": float(thr.mean()),
+        "throughput_se": se,
+        "ci95_low": float(thr.mean() - 1.96 * se) if n > 1 else float("nan"),
+        "ci95_high": float(thr.mean() + 1.96 * se) if n > 1 else float("nan"),
+        "throughput_flowing": float(flow.mean()) if flow.size else float("nan"),
+        "cpu_seconds_mean": float(np.mean([r["cpu_seconds"] for r in runs])),
+    }
+
+
+def _fmt(x: float) -> str:
+    return "—" if not math.isfinite(x) else f"{x:.2f}"
+
+
+def write_summary(out: Path, rows: list[dict], planner: str) -> None:
+    """``summary.csv``, ``summary.md`` (agents down, layouts across) and the picture."""
+    from nca_qd.evaluation.plots import plot_curves
+
+    keys = ["layout", "agents", *summarize_point([{"throughput": 0, "success": 1, "cpu_seconds": 0}])]
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=keys, lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: (round(v, 6) if isinstance(v, float) else v) for k, v in r.items() if k in keys})
+    atomic_write_text(out / "summary.csv", buf.getvalue())
+    labels = list(dict.fromkeys(r["layout"] for r in rows))
+    counts = sorted({r["agents"] for r in rows})
+    cell = {(r["layout"], r["agents"]): r for r in rows}
+    lines = [
+        f"Throughput (mean ± s.e. over all runs; a congested run counts the tasks it finished over T) "
+        f"and how many runs flowed (ended without congestion); planner {planner}.",
+        "",
+        "| agents | " + " | ".join(labels) + " |",
+        "|---" * (len(labels) + 1) + "|",
+    ]
+    for a in counts:
+        parts = []
+        for lab in labels:
+            r = cell[(lab, a)]
+            ok = round(r["success_rate"] * r["runs"])
+            parts.append(f"{_fmt(r['throughput_mean'])} ± {_fmt(r['throughput_se'])}, {ok} of {r['runs']}")
+        lines.append(f"| {a:,} | " + " | ".join(parts) + " |")
+    atomic_write_text(out / "summary.md", "\n".join(lines) + "\n")
+    plot_curves(
+        out / "throughput_vs_agents.png",
+        [{**r, "simulator": planner} for r in rows],
+        x="agents",
+        title=f"throughput against agents ({planner})",
+        xlabel="agents",
+    )
+
+
+def main(argv: list[str]) -> int:
+    argv, domain_override = take_domain(argv)
+    cfg = compose_config("sweep", argv)
+    if domain_override is not None:
+        cfg.domain = domain_override
+    if cfg.simulator != "rhcr":
+        raise NcaQdError(
+            f"a sweep runs the exact simulators (planner=rhcr|pibt), not simulator={cfg.simulator}"
+        )
+    layouts = [Path(str(p)) for p in _list(cfg, "layouts")]
+    counts = _list(cfg, "agents")
+    if any(isinstance(a, bool) or not isinstance(a, int) or a < 1 for a in counts):
+        raise NcaQdError(f"agents must be a list of positive integers, got {counts}")
+    stems = [p.stem for p in layouts]
+    if len(set(stems)) != len(stems):
+        raise NcaQdError(f"layout file names must differ (they label the runs): {stems}")
+    if OmegaConf.is_missing(cfg, "out") or not cfg.out:
+        raise NcaQdError("give out=<folder>")
+    n_runs, first = _int(cfg, "seeds", minimum=1), _int(cfg, "seed", minimum=0)
+    domain = str(cfg.domain)
+    tiles = tiles_for(domain)
+    maps = {p.stem: load_map(p, tiles=tiles) for p in layouts}
+    digests = {s: hashlib.sha256("\n".join(m.rows).encode()).hexdigest()[:16] for s, m in maps.items()}
+    for a in counts:  # every setting checked before the first run
+        RunSettings(OmegaConf.merge(cfg, {"agents": a}))
+    out = Path(str(cfg.out))
+    out.mkdir(parents=True, exist_ok=True)
+    _pin(out, cfg, digests)
+    simulate = SIMULATORS["rhcr"]()
+    seeds = list(range(first, first + n_runs))
+    for stem, mf in maps.items():
+        for a in counts:
+            path = out / f"{stem}_{a}.jsonl"
+            todo = [s for s in seeds if s not in read_records(path)]
+            if not todo:
+                continue
+            settings = RunSettings(OmegaConf.merge(cfg, {"agents": a}))
+            scen = build_scenario(mf.rows, domain, n_agents=a, source=stem)
+            parallel = max(1, min(settings.threads, len(todo)))
+            memory.check(
+                parallel * scen.simulation_bytes(a),
+                f"{parallel} exact simulation(s) at once of the {scen.shape[0]}x{scen.shape[1]} map {stem}",
+                hint="use fewer threads=, or a smaller map",
+            )
+            for res in simulate(scen, settings, todo):
+                _append(path, res.summary())
+                print(json.dumps({"layout": stem, "agents": a, **res.summary()}), flush=True)
+    rows = []
+    for stem in maps:
+        for a in counts:
+            runs = [r for s, r in read_records(out / f"{stem}_{a}.jsonl").items() if s in seeds]
+            rows.append({"layout": stem, "agents": a, **summarize_point(runs)})
+    write_summary(out, rows, str(cfg.planner))
+    return 0
+
+
+if __name__ == "__main__":
+    main_guard(main, on_interrupt="finished runs are kept; the same command runs the missing ones")()

@@ -1,0 +1,123 @@
+"""`python -m experiments.sweep`: throughput against agents for several layouts, resumable."""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from experiments.sweep import main, read_records
+from nca_qd.errors import NcaQdError
+from nca_qd.sim.rhcr import simulate_scenario
+from nca_qd.sim.scenario import build_scenario
+
+WAREHOUSE = [
+    "............",
+    "w.eeee.eeeew",
+    "..@@@@.@@@@.",
+    "..eeee.eeee.",
+    "w..........w",
+    "..eeee.eeee.",
+    "..@@@@.@@@@.",
+    "w.eeee.eeeew",
+    "............",
+]
+OPEN = [r.replace("@", ".") if i == 2 else r for i, r in enumerate(WAREHOUSE)]
+REPO = Path(__file__).resolve().parents[1]
+
+
+def write_map(path: Path, rows: list[str]) -> str:
+    path.write_text(json.dumps({"name": path.stem, "layout": rows}))
+    return str(path)
+
+
+@pytest.fixture
+def maps(tmp_path):
+    return write_map(tmp_path / "shelves.json", WAREHOUSE), write_map(tmp_path / "open.json", OPEN)
+
+
+def sweep(out, layouts, *extra):
+    argv = [f"layouts=[{','.join(layouts)}]", "agents=[4,8]", "T=40", "planner=pibt", f"out={out}"]
+    return main([*argv, *extra])
+
+
+def test_every_point_is_recorded_and_summarised(tmp_path, maps):
+    out = tmp_path / "sweep"
+    assert sweep(out, maps, "seeds=2") == 0
+    rows = list(csv.DictReader(open(out / "summary.csv")))
+    assert [(r["layout"], r["agents"]) for r in rows] == [
+        ("shelves", "4"),
+        ("shelves", "8"),
+        ("open", "4"),
+        ("open", "8"),
+    ]
+    for r in rows:
+        runs = read_records(out / f"{r['layout']}_{r['agents']}.jsonl")
+        assert sorted(runs) == [0, 1]
+        thr = [runs[s]["throughput"] for s in (0, 1)]
+        assert float(r["throughput_mean"]) == pytest.approx(np.mean(thr), abs=1e-6)
+        assert float(r["throughput_se"]) == pytest.approx(np.std(thr, ddof=1) / np.sqrt(2), abs=1e-6)
+        assert float(r["success_rate"]) == np.mean([runs[s]["success"] for s in (0, 1)])
+    # each record is the run the simulator gives for that seed, not something the sweep made up
+    scen = build_scenario(OPEN, "warehouse_even", n_agents=8)
+    direct = simulate_scenario(scen, 8, 40, seed=1, planner="pibt").summary()
+    assert read_records(out / "open_8.jsonl")[1]["throughput"] == direct["throughput"]
+    md = (out / "summary.md").read_text()
+    assert "| agents | shelves | open |" in md and "2 of 2" in md
+    assert (out / "throughput_vs_agents.png").stat().st_size > 1000
+
+
+def test_a_second_call_runs_only_the_missing_seeds(tmp_path, maps, capsys):
+    out = tmp_path / "sweep"
+    sweep(out, maps[:1], "seeds=1")
+    first = (out / "shelves_4.jsonl").read_text()
+    # a kill during a write leaves a line cut short: it is skipped, and the next run starts anew
+    with open(out / "shelves_8.jsonl", "a") as f:
+        f.write('{"seed": 1, "throughp')
+    capsys.readouterr()
+    sweep(out, maps[:1], "seeds=2")
+    printed = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert sorted((p["agents"], p["seed"]) for p in printed) == [(4, 1), (8, 1)]
+    assert (out / "shelves_4.jsonl").read_text().startswith(first)
+    assert sorted(read_records(out / "shelves_8.jsonl")) == [0, 1]
+    rows = list(csv.DictReader(open(out / "summary.csv")))
+    assert [r["runs"] for r in rows] == ["2", "2"]
+
+
+def test_runs_of_other_settings_or_another_layout_are_not_mixed(tmp_path, maps):
+    out = tmp_path / "sweep"
+    sweep(out, maps[:1], "seeds=1")
+    with pytest.raises(NcaQdError, match="holds runs with T=40, this call asks T=50"):
+        sweep(out, maps[:1], "seeds=1", "T=50")
+    write_map(Path(maps[0]), OPEN)  # same name, other layout
+    with pytest.raises(NcaQdError, match="another layout named shelves"):
+        sweep(out, maps[:1], "seeds=1")
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["agents=5"], "agents must be a non-empty list"),
+        (["agents=[4,-1]"], "agents must be a list of positive integers"),
+        (["simulator=screen"], "a sweep runs the exact simulators"),
+        (["planner=astar"], "planner must be one of"),
+    ],
+)
+def test_bad_input_is_one_line_exit_2(tmp_path, maps, args, message):
+    argv = [f"layouts=[{maps[0]}]", "agents=[4]", "T=10", f"out={tmp_path / 'o'}", *args]
+    cmd = [sys.executable, "-m", "experiments.sweep", *argv]
+    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=120)
+    err = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2 and len(err) == 1 and message in err[0], proc.stderr
+
+
+def test_two_layouts_with_one_name_are_refused(tmp_path, maps):
+    (tmp_path / "b").mkdir()
+    other = write_map(tmp_path / "b" / "shelves.json", OPEN)
+    with pytest.raises(NcaQdError, match="layout file names must differ"):
+        sweep(tmp_path / "o", [maps[0], other], "seeds=1")
