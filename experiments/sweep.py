@@ -9,9 +9,10 @@ run's line to ``<out>/<layout stem>_<agents>.jsonl`` the moment it ends: Ctrl-C 
 loses only the runs in flight, and the same command goes on from there (more seeds or more
 agent counts later extend the same folder). ``sweep_config.yaml`` pins the folder's settings
 and each layout's digest; a later call with other settings or a changed layout file is
-refused (one line, exit 2) rather than mixing runs. Then writes ``summary.csv`` (per layout and
-agent count: runs, success rate, throughput mean ± s.e. over all runs and over the runs that
-flowed, CPU seconds), ``summary.md`` and ``throughput_vs_agents.png``.
+refused (one line, exit 2) rather than mixing runs. Then writes, over every run the folder
+holds (not only this call's), ``summary.csv`` (per layout and agent count: runs, success
+rate, throughput mean ± s.e. over all runs and over the runs that flowed, CPU seconds),
+``summary.md`` and ``throughput_vs_agents.png``.
 """
 
 from __future__ import annotations
@@ -218,13 +219,25 @@ def main(argv: list[str]) -> int:
             for res in simulate(scen, settings, todo):
                 _append(path, res.summary())
                 print(json.dumps({"layout": stem, "agents": a, **res.summary()}), flush=True)
-    rows = []
-    for stem in maps:
-        for a in counts:
-            runs = [r for s, r in read_records(out / f"{stem}_{a}.jsonl").items() if s in seeds]
-            rows.append({"layout": stem, "agents": a, **summarize_point(runs)})
-    write_summary(out, rows, str(cfg.planner))
+    write_summary(out, folder_points(out), str(cfg.planner))
     return 0
+
+
+def folder_points(out: Path) -> list[dict]:
+    """Every (layout, agents) point the folder holds, all its recorded runs (they share the
+    folder's settings): the summary of a sweep run in stages (more seeds, more counts later)."""
+    pinned = OmegaConf.to_container(OmegaConf.load(out / "sweep_config.yaml")) or {}
+    assert isinstance(pinned, dict)
+    rows = []
+    for stem in pinned.get("layouts", {}):
+        counts = sorted(
+            int(tail) for f in out.glob(f"{stem}_*.jsonl") if (tail := f.stem[len(stem) + 1 :]).isdigit()
+        )
+        for a in counts:
+            runs = list(read_records(out / f"{stem}_{a}.jsonl").values())
+            if runs:
+                rows.append({"layout": stem, "agents": a, **summarize_point(runs)})
+    return rows
 
 
 if __name__ == "__main__":

@@ -121,3 +121,13 @@ def test_two_layouts_with_one_name_are_refused(tmp_path, maps):
     other = write_map(tmp_path / "b" / "shelves.json", OPEN)
     with pytest.raises(NcaQdError, match="layout file names must differ"):
         sweep(tmp_path / "o", [maps[0], other], "seeds=1")
+
+
+def test_the_summary_covers_every_point_the_folder_holds(tmp_path, maps):
+    out = tmp_path / "sweep"
+    base = [f"layouts=[{maps[0]}]", "T=30", "planner=pibt", f"out={out}", "seeds=1"]
+    main([*base, "agents=[8]"])
+    main([*base, "agents=[4]", "seed=1"])  # another count, another seed: a later stage
+    rows = list(csv.DictReader(open(out / "summary.csv")))
+    assert [(r["agents"], r["runs"]) for r in rows] == [("4", "1"), ("8", "1")]
+    assert sorted(read_records(out / "shelves_4.jsonl")) == [1]
