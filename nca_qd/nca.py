@@ -45,7 +45,10 @@ class NCAGenerator:
     def __init__(self, n_tiles: int, hidden: int = 32):
         self.n_tiles = n_tiles
         self.module = NCA(n_tiles=n_tiles, hidden=hidden)
-        template = self.module.init(jax.random.PRNGKey(0), jnp.zeros((1, 3, 3, n_tiles)))
+        # Only the parameters' shapes are needed here: abstract evaluation, not Flax's init, which
+        # would run (and compile) every initialiser op by op in every process (docs/benchmarks.md).
+        shapes = jax.eval_shape(self.module.init, jax.random.PRNGKey(0), jnp.zeros((1, 3, 3, n_tiles)))
+        template = jax.tree.map(lambda s: np.zeros(s.shape, s.dtype), shapes)
         flat, self._unravel = ravel_pytree(template)
         self.n_params = int(flat.shape[0])
         self._generate = jax.jit(self._generate_impl, static_argnames=("n_iters",))
