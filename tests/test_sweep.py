@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from experiments.sweep import main, read_records
+from experiments.sweep import by_tenth, main, read_records
 from nca_qd.errors import NcaQdError
 from nca_qd.sim.rhcr import simulate_scenario
 from nca_qd.sim.scenario import build_scenario
@@ -63,6 +63,10 @@ def test_every_point_is_recorded_and_summarised(tmp_path, maps):
         assert float(r["throughput_mean"]) == pytest.approx(np.mean(thr), abs=1e-6)
         assert float(r["throughput_se"]) == pytest.approx(np.std(thr, ddof=1) / np.sqrt(2), abs=1e-6)
         assert float(r["success_rate"]) == np.mean([runs[s]["success"] for s in (0, 1)])
+        for s in (0, 1):  # the tenths of the horizon add up to the run's throughput
+            assert np.mean(runs[s]["throughput_by_tenth"]) == pytest.approx(runs[s]["throughput"], abs=1e-3)
+        late = np.mean([runs[s]["throughput_by_tenth"][-1] for s in (0, 1)])
+        assert float(r["throughput_last_tenth"]) == pytest.approx(late, abs=1e-6)
     # each record is the run the simulator gives for that seed, not something the sweep made up
     scen = build_scenario(OPEN, "warehouse_even", n_agents=8)
     direct = simulate_scenario(scen, 8, 40, seed=1, planner="pibt").summary()
@@ -131,3 +135,14 @@ def test_the_summary_covers_every_point_the_folder_holds(tmp_path, maps):
     rows = list(csv.DictReader(open(out / "summary.csv")))
     assert [(r["agents"], r["runs"]) for r in rows] == [("4", "1"), ("8", "1")]
     assert sorted(read_records(out / "shelves_4.jsonl")) == [1]
+    main([f"layouts=[{maps[1]}]", "T=30", "planner=pibt", f"out={out}", "seeds=1", "agents=[4]"])
+    md = (out / "summary.md").read_text()
+    assert "| agents | shelves | open |" in md
+    assert [line.split(" | ")[2] for line in md.splitlines() if line.startswith("| 8 |")] == ["not run |"]
+
+
+def test_a_run_stopped_as_congested_finishes_nothing_after_its_stop():
+    tasks = np.ones(37)  # one task a step, stopped at t = 37 of T = 100
+    tenths = by_tenth(tasks, 100)
+    assert tenths[:3] == [1.0, 1.0, 1.0] and tenths[3] == pytest.approx(0.7) and tenths[4:] == [0.0] * 6
+    assert np.mean(tenths) == pytest.approx(37 / 100)
