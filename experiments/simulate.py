@@ -73,24 +73,27 @@ def rhcr_options(cfg: DictConfig) -> dict:
     return planner_options({k: cfg[k] for k in PLANNER_KEYS if k in cfg})
 
 
-def _rhcr(scen: Scenario, s: RunSettings, seeds: list[int]) -> Iterator:
+def exact_run(scen: Scenario, s: RunSettings, seed: int):
+    """One exact run (RHCR or PIBT, ``planner``) of the scenario with these settings."""
     from nca_qd.sim.rhcr import simulate_scenario
 
-    def one(seed: int):
-        return simulate_scenario(
-            scen,
-            s.agents,
-            s.T,
-            seed,
-            window=s.window,
-            replan=s.replan,
-            time_limit_s=s.time_limit_s,
-            record_paths=s.record_paths,
-            **s.rhcr,
-        )
+    return simulate_scenario(
+        scen,
+        s.agents,
+        s.T,
+        seed,
+        window=s.window,
+        replan=s.replan,
+        time_limit_s=s.time_limit_s,
+        record_paths=s.record_paths,
+        **s.rhcr,
+    )
 
+
+def _rhcr(scen: Scenario, s: RunSettings, seeds: list[int]) -> Iterator:
     with ThreadPoolExecutor(max_workers=max(1, min(s.threads, len(seeds)))) as pool:
-        yield from pool.map(one, seeds)  # the core releases the GIL: runs are parallel
+        # the core releases the GIL: runs are parallel
+        yield from pool.map(lambda seed: exact_run(scen, s, seed), seeds)
 
 
 def _screen(scen: Scenario, s: RunSettings, seeds: list[int]) -> Iterator:

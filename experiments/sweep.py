@@ -23,13 +23,15 @@ import io
 import json
 import math
 import os
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor, as_completed, wait
 from pathlib import Path
 
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from experiments.cli import compose_config, main_guard, take_domain
-from experiments.simulate import SIMULATORS, RunSettings, _int
+from experiments.simulate import RunSettings, _int, exact_run
 from nca_qd import memory
 from nca_qd.errors import NcaQdError
 from nca_qd.io import atomic_write_text, load_map
@@ -224,7 +226,6 @@ def main(argv: list[str]) -> int:
     out = Path(str(cfg.out))
     out.mkdir(parents=True, exist_ok=True)
     _pin(out, cfg, digests)
-    simulate = SIMULATORS["rhcr"]()
     seeds = list(range(first, first + n_runs))
     for stem, mf in maps.items():
         for a in counts:
@@ -240,12 +241,32 @@ def main(argv: list[str]) -> int:
                 f"{parallel} exact simulation(s) at once of the {scen.shape[0]}x{scen.shape[1]} map {stem}",
                 hint="use fewer threads=, or a smaller map",
             )
-            for res in simulate(scen, settings, todo):
-                record = {**res.summary(), "throughput_by_tenth": by_tenth(res.tasks_per_step, settings.T)}
+
+            def keep(res, path=path, stem=stem, a=a, T=settings.T) -> None:
+                record = {**res.summary(), "throughput_by_tenth": by_tenth(res.tasks_per_step, T)}
                 _append(path, record)
                 print(json.dumps({"layout": stem, "agents": a, **record}), flush=True)
+
+            run_point(scen, settings, todo, parallel, keep)
     write_summary(out, folder_points(out), str(cfg.planner))
     return 0
+
+
+def run_point(scen, settings: RunSettings, seeds: list[int], parallel: int, keep: Callable) -> None:
+    """The runs of one point, ``parallel`` at a time, each kept the moment it ends. Stopped
+    (Ctrl-C, SIGTERM), the runs not started are cancelled and the ones under way, which the
+    core cannot abandon, are waited for and kept too, before the interruption goes on."""
+    with ThreadPoolExecutor(max_workers=parallel) as pool:
+        futures = [pool.submit(exact_run, scen, settings, seed) for seed in seeds]
+        try:
+            for f in as_completed(futures):
+                keep(f.result())
+        except KeyboardInterrupt:
+            under_way = [f for f in futures if not f.cancel() and not f.done()]
+            for f in wait(under_way).done:
+                if f.exception() is None:
+                    keep(f.result())
+            raise
 
 
 def folder_points(out: Path) -> list[dict]:

@@ -146,3 +146,31 @@ def test_a_run_stopped_as_congested_finishes_nothing_after_its_stop():
     tenths = by_tenth(tasks, 100)
     assert tenths[:3] == [1.0, 1.0, 1.0] and tenths[3] == pytest.approx(0.7) and tenths[4:] == [0.0] * 6
     assert np.mean(tenths) == pytest.approx(37 / 100)
+
+
+def test_sigterm_keeps_every_run_that_ended_and_cancels_the_rest(tmp_path):
+    import signal
+
+    from nca_qd.io import array_to_rows
+    from nca_qd.layouts import get_layout
+    from nca_qd.layouts.warehouse import human_layout
+
+    rows = array_to_rows(human_layout((33, 36)), get_layout("warehouse_even").tiles)
+    layout = write_map(tmp_path / "human.json", rows)
+    out = tmp_path / "sweep"
+    argv = [f"layouts=[{layout}]", "agents=[100]", "T=3000", "seeds=40", "threads=2", f"out={out}"]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "experiments.sweep", *argv],
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    first = proc.stdout.readline()  # one run has ended; another is under way in the other thread
+    proc.send_signal(signal.SIGTERM)
+    rest, err = proc.communicate(timeout=300)
+    printed = [json.loads(line) for line in [first, *rest.splitlines()]]
+    kept = read_records(out / "human_100.jsonl")
+    assert proc.returncode == 130 and "finished runs are kept" in err, err
+    assert sorted(kept) == sorted(p["seed"] for p in printed)  # every run that ended is on disk
+    assert 2 <= len(kept) < 40  # the run under way was kept, the ones not started were cancelled
