@@ -35,24 +35,11 @@ from experiments.simulate import RunSettings, _int, exact_run
 from nca_qd import memory
 from nca_qd.errors import NcaQdError
 from nca_qd.io import atomic_write_text, load_map
+from nca_qd.sim.rhcr import PLANNER_KEYS
 from nca_qd.sim.scenario import build_scenario, tiles_for
 
 # The settings a folder's runs share (anything else, e.g. threads, may change between calls).
-PINNED = (
-    "domain",
-    "T",
-    "simulator",
-    "window",
-    "replan",
-    "time_limit_s",
-    "planner",
-    "plan_time_limit_s",
-    "pbs_max_nodes",
-    "plan_max_expansions",
-    "prioritize_start",
-    "starts",
-    "screen_crowd_mean",
-)
+PINNED = ("domain", "T", "simulator", "window", "replan", "time_limit_s", *PLANNER_KEYS, "screen_crowd_mean")
 
 
 def _list(cfg: DictConfig, key: str) -> list:

@@ -10,23 +10,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from sim_layouts import WAREHOUSE
 
 from experiments.sweep import by_tenth, main, read_records
 from nca_qd.errors import NcaQdError
 from nca_qd.sim.rhcr import simulate_scenario
 from nca_qd.sim.scenario import build_scenario
 
-WAREHOUSE = [
-    "............",
-    "w.eeee.eeeew",
-    "..@@@@.@@@@.",
-    "..eeee.eeee.",
-    "w..........w",
-    "..eeee.eeee.",
-    "..@@@@.@@@@.",
-    "w.eeee.eeeew",
-    "............",
-]
 OPEN = [r.replace("@", ".") if i == 2 else r for i, r in enumerate(WAREHOUSE)]
 REPO = Path(__file__).resolve().parents[1]
 
