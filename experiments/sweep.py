@@ -210,7 +210,7 @@ def main(argv: list[str]) -> int:
         cfg.domain = domain_override
     if cfg.simulator != "rhcr":
         raise NcaQdError(
-            f"a sweep runs the exact simulators (planner=rhcr|pibt), not simulator={cfg.simulator}"
+            f"a sweep runs the exact simulators (planner=rhcr|pibt|pibt_swap), not simulator={cfg.simulator}"
         )
     layouts = [Path(str(p)) for p in _list(cfg, "layouts")]
     counts = _list(cfg, "agents")

@@ -18,8 +18,8 @@ from nca_qd.sim.rhcr import planner_options, simulate
 from nca_qd.sim.scenario import build_scenario
 
 
-def run_checked(rows, scenario, n_agents, T, seed=0):
-    res = simulate(rows, scenario, n_agents, T, seed, record_paths=True, planner="pibt")
+def run_checked(rows, scenario, n_agents, T, seed=0, planner="pibt"):
+    res = simulate(rows, scenario, n_agents, T, seed, record_paths=True, planner=planner)
     report = check_run(res, rows)  # no vertex or swap conflict, only moves, goals recounted
     assert report.finished_tasks == res.finished_tasks
     assert res.tile_visits.sum() == n_agents * res.stop_time
@@ -99,35 +99,65 @@ def test_a_one_lane_corridor_deadlocks_and_the_run_stops_as_congested():
     density=st.floats(0.05, 1.0),
     T=st.integers(1, 60),
     seed=st.integers(0, 2**32),
+    planner=st.sampled_from(["pibt", "pibt_swap"]),
 )
-def test_random_warehouses_always_valid(rows, scenario, density, T, seed):
+def test_random_warehouses_always_valid(rows, scenario, density, T, seed, planner):
     try:
         scen = build_scenario(rows, scenario)
     except NcaQdError:
         scen = None
     assume(scen is not None)
-    res = run_checked(rows, scenario, max(1, int(density * scen.n_traversable)), T, seed=seed)
+    n = max(1, int(density * scen.n_traversable))
+    res = run_checked(rows, scenario, n, T, seed=seed, planner=planner)
     assert res.success == (res.stop_time == T and not res.congested)
 
 
 @settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.filter_too_much])
 @given(
-    rows=manufacturing_maps(), density=st.floats(0.05, 1.0), T=st.integers(1, 60), seed=st.integers(0, 2**32)
+    rows=manufacturing_maps(),
+    density=st.floats(0.05, 1.0),
+    T=st.integers(1, 60),
+    seed=st.integers(0, 2**32),
+    planner=st.sampled_from(["pibt", "pibt_swap"]),
 )
-def test_random_manufacturing_always_valid(rows, density, T, seed):
+def test_random_manufacturing_always_valid(rows, density, T, seed, planner):
     """Dwelling agents stay put whoever asks them to move (the checker recounts the dwells)."""
     try:
         scen = build_scenario(rows, "manufacturing")
     except NcaQdError:
         scen = None
     assume(scen is not None)
-    run_checked(rows, "manufacturing", max(1, int(density * scen.n_traversable)), T, seed=seed)
+    n = max(1, int(density * scen.n_traversable))
+    run_checked(rows, "manufacturing", n, T, seed=seed, planner=planner)
+
+
+POCKETS = ["w.........w", "...........", "@e@e@e@e@e@"]  # endpoints in dead-end pockets
+
+
+def test_a_dead_end_pocket_deadlocks_pibt_and_pibt_with_swap_clears_it():
+    """An agent waiting at a pocket's mouth outranks the one leaving it (whose priority restarted
+    with its new goal): the leaver's only move is the waiter's cell, a swap PIBT forbids, so
+    both stand still for good and the corridor behind them fills. PIBT with swap backs the
+    waiter up and pulls the leaver out. Every run through the independent checker."""
+    for seed in range(5):
+        plain = run_checked(POCKETS, "warehouse_even", 4, 500, seed=seed)
+        assert plain.congested and plain.finished_tasks < 40
+        res = run_checked(POCKETS, "warehouse_even", 4, 500, seed=seed, planner="pibt_swap")
+        assert res.success and res.finished_tasks > 60
+        assert np.array_equal(res.paths[0], plain.paths[0])  # the same start cells
+    # On two-lane loops both flow, and they are different planners (LaCAM3's ties: no
+    # preference for cells free now).
+    for seed in range(3):
+        a = run_checked(WAREHOUSE, "warehouse_even", 40, 200, seed=seed)
+        b = run_checked(WAREHOUSE, "warehouse_even", 40, 200, seed=seed, planner="pibt_swap")
+        assert a.success and b.success and not np.array_equal(a.paths, b.paths)
 
 
 def test_the_planner_setting_is_checked_and_keys_rhcr_runs_as_before():
     assert planner_options({"planner": "pibt"}) == {"planner": "pibt"}
+    assert planner_options({"planner": "pibt_swap"}) == {"planner": "pibt_swap"}
     assert planner_options({"planner": "rhcr"}) == {}  # as before the setting existed
-    with pytest.raises(NcaQdError, match="exact.planner must be one of rhcr, pibt"):
+    with pytest.raises(NcaQdError, match="exact.planner must be one of rhcr, pibt, pibt_swap"):
         planner_options({"planner": "lacam"}, "exact.")
     with pytest.raises(NcaQdError, match="planner must be one of"):
         simulate(WAREHOUSE, "warehouse_even", 5, 10, 0, planner="PIBT")

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from sim_layouts import WAREHOUSE
 
+from experiments.cli import main_guard
 from experiments.sweep import by_tenth, main, read_records
 from nca_qd.errors import NcaQdError
 from nca_qd.sim.rhcr import simulate_scenario
@@ -99,15 +100,18 @@ def test_runs_of_other_settings_or_another_layout_are_not_mixed(tmp_path, maps):
         (["agents=5"], "agents must be a non-empty list"),
         (["agents=[4,-1]"], "agents must be a list of positive integers"),
         (["simulator=screen"], "a sweep runs the exact simulators"),
-        (["planner=astar"], "planner must be one of"),
+        (["planner=astar"], "planner must be one of rhcr, pibt, pibt_swap"),
     ],
 )
-def test_bad_input_is_one_line_exit_2(tmp_path, maps, args, message):
+def test_bad_input_is_one_line_exit_2(tmp_path, maps, args, message, monkeypatch, capsys):
+    """Through the command's own entry point (main_guard), in this process; the SIGTERM case
+    below runs the real `python -m experiments.sweep`."""
     argv = [f"layouts=[{maps[0]}]", "agents=[4]", "T=10", f"out={tmp_path / 'o'}", *args]
-    cmd = [sys.executable, "-m", "experiments.sweep", *argv]
-    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=120)
-    err = proc.stderr.strip().splitlines()
-    assert proc.returncode == 2 and len(err) == 1 and message in err[0], proc.stderr
+    monkeypatch.setattr(sys, "argv", ["prog", *argv])
+    with pytest.raises(SystemExit) as exc:
+        main_guard(main)()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exc.value.code == 2 and len(err) == 1 and message in err[0], err
 
 
 def test_two_layouts_with_one_name_are_refused(tmp_path, maps):

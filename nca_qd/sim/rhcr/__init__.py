@@ -121,7 +121,9 @@ def simulate_scenario(
     a bound on work that, unlike the CPU-time cutoff, stops a jammed call at the same point on
     any machine. A call that hits any of them is repaired and counted in ``pbs_failures``.
     ``planner="pibt"`` plans one step at a time with PIBT instead (``window`` and the PBS knobs
-    unused; ``replan`` is the congestion rule's period, as in RHCR).
+    unused; ``replan`` is the congestion rule's period, as in RHCR); ``planner="pibt_swap"``
+    with PIBT with swap (LaCAM3's PIBT: two agents that must pass each other in a one-lane
+    corridor back up together to a branch, where plain PIBT deadlocks).
     """
     _check_params(scen, n_agents, T, window, replan, time_limit_s)
     h, w = scen.shape
@@ -240,7 +242,8 @@ PLANNER_KEYS = (
     "prioritize_start",
     "starts",
 )
-PLANNERS = ("rhcr", "pibt")  # RHCR (windowed PBS, as the paper) / lifelong PIBT (one step per call)
+# RHCR (windowed PBS, as the paper) / lifelong PIBT (one step per call) / PIBT with swap (LaCAM3's)
+PLANNERS = ("rhcr", "pibt", "pibt_swap")
 STARTS = ("random", "reference")  # start cells drawn per seed / the reference's one configuration
 
 

@@ -33,7 +33,8 @@ nb::dict run(nb::ndarray<const uint8_t, nb::ndim<2>, nb::c_contig, nb::device::c
              int window, int replan, double time_limit_s, int64_t pbs_max_nodes, bool record_paths,
              double plan_time_limit_s, bool prioritize_start, bool reference_starts, int64_t plan_max_expansions,
              const std::string& planner) {
-  if (planner != "rhcr" && planner != "pibt") throw std::invalid_argument("planner must be rhcr or pibt");
+  if (planner != "rhcr" && planner != "pibt" && planner != "pibt_swap")
+    throw std::invalid_argument("planner must be rhcr, pibt or pibt_swap");
   rhcr::SimConfig cfg;
   cfg.rows = static_cast<int>(traversable.shape(0));
   cfg.cols = static_cast<int>(traversable.shape(1));
@@ -59,7 +60,7 @@ nb::dict run(nb::ndarray<const uint8_t, nb::ndim<2>, nb::c_contig, nb::device::c
   rhcr::SimResult r;
   {
     nb::gil_scoped_release release;  // simulations in other threads run in parallel
-    r = planner == "pibt" ? rhcr::simulate_pibt(cfg) : rhcr::simulate(cfg);
+    r = planner == "rhcr" ? rhcr::simulate(cfg) : rhcr::simulate_pibt(cfg, planner == "pibt_swap");
   }
   const size_t steps = static_cast<size_t>(r.stop_time) + 1;
   nb::dict d;
@@ -158,7 +159,7 @@ NB_MODULE(_core, m) {
         "pbs_max_nodes"_a = 0, "record_paths"_a = false, "plan_time_limit_s"_a = 60.0,
         "prioritize_start"_a = true, "reference_starts"_a = false, "plan_max_expansions"_a = 0,
         "planner"_a = "rhcr",
-        "Run one simulation (planner rhcr: windowed PBS; pibt: lifelong PIBT); returns a dict of figures and NumPy arrays. Releases the GIL.");
+        "Run one simulation (planner rhcr: windowed PBS; pibt: lifelong PIBT; pibt_swap: PIBT with swap); returns a dict of figures and NumPy arrays. Releases the GIL.");
   m.def("plan", &plan, "traversable"_a, "starts"_a, "goals"_a, "window"_a = 10, "executed_steps"_a = 5,
         "max_nodes"_a = 0, "time_limit_s"_a = 60.0, "prioritize_start"_a = true, "seed"_a = 0,
         "dwells"_a = std::vector<std::vector<int>>(),

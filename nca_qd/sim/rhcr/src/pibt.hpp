@@ -15,7 +15,9 @@
 
 namespace rhcr {
 
-// Runs one simulation with PIBT as the planner (window, PBS and A* settings unused).
-SimResult simulate_pibt(const SimConfig& cfg);
+// Runs one simulation with PIBT as the planner (window, PBS and A* settings unused); with
+// `swap`, PIBT with swap (LaCAM3's PIBT: pairs that must pass each other in a one-lane corridor
+// back up to a branch; see pibt.cpp).
+SimResult simulate_pibt(const SimConfig& cfg, bool swap = false);
 
 }  // namespace rhcr
