@@ -41,6 +41,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 DRIVER_DIR = ROOT / "benchmarks" / "lacam3_lifelong"
+RNG_HPP = ROOT / "nca_qd" / "sim" / "rhcr" / "src" / "rng.hpp"  # the driver draws with the core's own stream
 MAPS = {  # name: (layout file, scenario)
     "warehouse_even_human": (
         "results/warehouse_even_qd/cma_mae_a5_s0/evaluation/layouts/human_33x36.json",
@@ -88,7 +89,7 @@ def build(src: Path, hooked: bool) -> Path:
     nothing of lacam3 (source or binary) lands in the working tree."""
     if shutil.which("g++") is None:
         raise CheckError("g++ is not on PATH (the lacam3 driver is compiled with it)")
-    ours = [DRIVER_DIR / "driver.cpp"] + ([DRIVER_DIR / "hook_pibt.cpp"] if hooked else [])
+    ours = [DRIVER_DIR / "driver.cpp", RNG_HPP] + ([DRIVER_DIR / "hook_pibt.cpp"] if hooked else [])
     theirs = [src / "src" / f for f in (*LACAM_SOURCES, "pibt.cpp")] + sorted((src / "include").glob("*.hpp"))
     version = subprocess.run(["g++", "--version"], capture_output=True, text=True).stdout.splitlines()[0]
     digest = hashlib.sha256(f"{version} {CXXFLAGS} {hooked}".encode())

@@ -44,45 +44,12 @@
 #include "instance.hpp"
 #include "pibt.hpp"
 
+#include "../../nca_qd/sim/rhcr/src/rng.hpp"  // found relative to this file, not in lacam3
+
 namespace {
 
-// xoshiro256**, seeded by splitmix64 (the algorithms and constants of nca-qd's rng.hpp).
-class Stream {
- public:
-  explicit Stream(uint64_t seed) {
-    for (auto& word : s_) {
-      seed += 0x9e3779b97f4a7c15ULL;
-      uint64_t z = seed;
-      z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ULL;
-      z = (z ^ (z >> 27)) * 0x94d049bb133111ebULL;
-      word = z ^ (z >> 31);
-    }
-  }
-  uint64_t next() {
-    const uint64_t out = rotl(s_[1] * 5, 7) * 9;
-    const uint64_t t = s_[1] << 17;
-    s_[2] ^= s_[0];
-    s_[3] ^= s_[1];
-    s_[1] ^= s_[2];
-    s_[0] ^= s_[3];
-    s_[2] ^= t;
-    s_[3] = rotl(s_[3], 45);
-    return out;
-  }
-  uint64_t below(uint64_t n) {  // unbiased, in [0, n) (Lemire)
-    __uint128_t m = static_cast<__uint128_t>(next()) * n;
-    if (static_cast<uint64_t>(m) < n) {
-      const uint64_t threshold = (0 - n) % n;
-      while (static_cast<uint64_t>(m) < threshold) m = static_cast<__uint128_t>(next()) * n;
-    }
-    return static_cast<uint64_t>(m >> 64);
-  }
-  double uniform() { return static_cast<double>(next() >> 11) * 0x1.0p-53; }
-
- private:
-  static uint64_t rotl(uint64_t x, int k) { return (x << k) | (x >> (64 - k)); }
-  uint64_t s_[4];
-};
+// The core's own random stream (the driver must draw what the core draws, seed for seed).
+using Stream = rhcr::Rng;
 
 // The scenario file written by check_pibt_swap_reference.py: "rows cols", the mask (one row a
 // line, 1 = traversable), the classes ("dwell k", then k lines "cell weight"), the cycle.
