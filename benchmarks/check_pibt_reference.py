@@ -24,6 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.check_pibt_swap_reference import int_list
+
 M64 = (1 << 64) - 1
 ROOT = Path(__file__).resolve().parents[1]
 MAPS = {  # name: (layout file, scenario)
@@ -184,14 +186,6 @@ def lockstep(PIBT, DistTable, rows: list[str], scenario: str, n: int, seed: int,
     return {"identical": True, "steps": paths.shape[0] - 1, "stop_time": ours.stop_time}
 
 
-def _ints(text: str) -> list[int]:
-    out: list[int] = []
-    for part in text.split(","):
-        a, _, b = part.partition("-")
-        out.extend(range(int(a), int(b or a) + 1))
-    return out
-
-
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--pypibt", required=True, help="a checkout of github.com/Kei18/pypibt")
@@ -200,6 +194,17 @@ def main() -> int:
     p.add_argument("--seeds", default="0-4")
     p.add_argument("--T", type=int, default=1000)
     args = p.parse_args()
+    try:
+        agents, seeds = int_list(args.agents), int_list(args.seeds)
+    except ValueError:
+        print(
+            f"error: --agents {args.agents!r} / --seeds {args.seeds!r}: expected e.g. 50,100 / 0-4",
+            file=sys.stderr,
+        )
+        return 2
+    if not agents or not seeds or min(agents) < 1 or min(seeds) < 0 or args.T < 1:
+        print("error: --agents, --T must be positive and --seeds non-negative", file=sys.stderr)
+        return 2
     src = Path(args.pypibt)
     if not (src / "pypibt" / "pibt.py").is_file():
         print(f"error: {src} is not a checkout of Kei18/pypibt (no pypibt/pibt.py)", file=sys.stderr)
@@ -216,8 +221,8 @@ def main() -> int:
     for name in args.maps.split(","):
         path, scenario = MAPS[name]
         rows = json.loads((ROOT / path).read_text())["layout"]
-        for n in _ints(args.agents):
-            for seed in _ints(args.seeds):
+        for n in agents:
+            for seed in seeds:
                 res = lockstep(PIBT, DistTable, rows, scenario, n, seed, args.T)
                 same, total = same + res["identical"], total + 1
                 print(json.dumps({"map": name, "agents": n, "seed": seed, **res}), flush=True)

@@ -242,7 +242,7 @@ def replay(binary: Path, scens: dict, prefixes: dict, agents: list[int], seeds: 
     return same
 
 
-def _ints(text: str) -> list[int]:
+def int_list(text: str) -> list[int]:
     """``0-4`` or ``0,3,7-9`` as a list; ValueError for anything else."""
     out: list[int] = []
     for part in text.split(","):
@@ -275,7 +275,7 @@ def setup(args: argparse.Namespace, workdir: Path) -> tuple[Path, dict, dict, li
     if src is None:
         raise CheckError(f"{args.lacam3} is not a checkout of Kei18/lacam3 (no lacam3/src/pibt.cpp)")
     try:
-        agents, seeds = _ints(args.agents), _ints(args.seeds)
+        agents, seeds = int_list(args.agents), int_list(args.seeds)
     except ValueError:
         raise CheckError(
             f"--agents {args.agents!r} / --seeds {args.seeds!r}: expected e.g. 100,200 / 0-4"
