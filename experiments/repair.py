@@ -62,8 +62,12 @@ def main(argv: list[str]) -> int:
     path = Path(cfg.layout)
     mapfile = load_map(path, tiles)
     layout = mapfile.to_array(tiles)
+    name, extra = mapfile.name, dict(mapfile.extra)
     if cfg.tile is not None:
+        source = f"{mapfile.name} ({layout.shape[0]}x{layout.shape[1]})"
         layout = tiled(domain, layout, cfg.tile, path)
+        # the tiling baseline is named as one: its title and file tell it from a grown layout
+        name, extra["tiled_from"] = f"{mapfile.name}_tiled_{layout.shape[0]}x{layout.shape[1]}", source
     opts = {
         key: (cfg[key] if cfg[key] is not None else domain_default(cfg, key, layout.shape[0]))
         for key in REPAIR_OPTIONS  # the command line's value, else the domain's repair block
@@ -90,11 +94,10 @@ def main(argv: list[str]) -> int:
         "gap": None if res.details.get("gap") is None else round(res.details["gap"], 6),
     }
     if res.layout is not None:
-        extra = dict(mapfile.extra)
         extra["repair"] = {k: line[k] for k in ("status", "hamming", "similarity", "seconds")}
         save_map(
             cfg.out,
-            MapFile(name=f"{mapfile.name}_repaired", rows=array_to_rows(res.layout, tiles), extra=extra),
+            MapFile(name=f"{name}_repaired", rows=array_to_rows(res.layout, tiles), extra=extra),
         )
         if cfg.render:
             from nca_qd.viz import render_layouts

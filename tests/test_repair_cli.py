@@ -166,6 +166,8 @@ def test_tile_repairs_the_layout_repeated_to_a_larger_map(tmp_path, monkeypatch,
     assert check(lay, make_rules("warehouse_even", lay.shape, n_shelves=n_shelves)) is None
     got = np.array([list(r) for r in load_map(out).rows])[:, 2:-2]
     assert line["hamming"] == int((got != want).sum())  # the frame is not the repair's to change
+    saved = json.loads(out.read_text())  # named as a tiling, from what
+    assert saved["name"].endswith("_tiled_14x16_repaired") and saved["tiled_from"].endswith("(7x9)")
     code = run(repair_cli, ["domain=warehouse_even", f"layout={src}", f"out={out}", "tile=[14]"], monkeypatch)
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and "tile must be [rows, cols]" in err
