@@ -6,8 +6,9 @@
 Runs every (layout, agent count, seed) that ``out`` does not hold yet, as
 ``experiments.simulate`` would (same settings and defaults, simulate.yaml), and appends each
 run's line to ``<out>/<layout stem>_<agents>.jsonl`` the moment it ends: Ctrl-C or SIGTERM
-loses only the runs in flight, and the same command goes on from there (more seeds or more
-agent counts later extend the same folder). ``sweep_config.yaml`` pins the folder's settings
+waits for the runs in flight and keeps them (a second one drops them and ends at once), and
+the same command goes on from there (more seeds or more agent counts later extend the same
+folder). ``sweep_config.yaml`` pins the folder's settings
 and each layout's digest; a later call with other settings or a changed layout file is
 refused (one line, exit 2) rather than mixing runs. Then writes, over every run the folder
 holds (not only this call's), ``summary.csv`` (per layout and agent count: runs, success
@@ -23,6 +24,7 @@ import io
 import json
 import math
 import os
+import sys
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor, as_completed, wait
 from pathlib import Path
@@ -30,7 +32,7 @@ from pathlib import Path
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
-from experiments.cli import compose_config, main_guard, take_domain
+from experiments.cli import EXIT_INTERRUPTED, compose_config, main_guard, take_domain
 from experiments.simulate import RunSettings, _int, exact_run
 from nca_qd import memory
 from nca_qd.errors import NcaQdError
@@ -260,7 +262,10 @@ def main(argv: list[str]) -> int:
 def run_point(scen, settings: RunSettings, seeds: list[int], parallel: int, keep: Callable) -> None:
     """The runs of one point, ``parallel`` at a time, each kept the moment it ends. Stopped
     (Ctrl-C, SIGTERM), the runs not started are cancelled and the ones under way, which the
-    core cannot abandon, are waited for and kept too, before the interruption goes on."""
+    core cannot abandon, are waited for and kept too, before the interruption goes on. A
+    second interruption drops them: a run at 140x500 can take a quarter of an hour, and the
+    threads running the core cannot be stopped, so the process ends there (what is on disk
+    stands; the same command runs the dropped ones)."""
     with ThreadPoolExecutor(max_workers=parallel) as pool:
         futures = [pool.submit(exact_run, scen, settings, seed) for seed in seeds]
         try:
@@ -268,10 +273,31 @@ def run_point(scen, settings: RunSettings, seeds: list[int], parallel: int, keep
                 keep(f.result())
         except KeyboardInterrupt:
             under_way = [f for f in futures if not f.cancel() and not f.done()]
-            for f in wait(under_way).done:
-                if f.exception() is None:
-                    keep(f.result())
+            if under_way:
+                print(
+                    f"interrupted: waiting for the {len(under_way)} run(s) under way to keep them "
+                    "(interrupt again to drop them)",
+                    file=sys.stderr,
+                    flush=True,
+                )
+            try:
+                for f in wait(under_way).done:
+                    if f.exception() is None:
+                        keep(f.result())
+            except KeyboardInterrupt:
+                print(
+                    "interrupted again: the runs under way are dropped, the finished ones kept; "
+                    "the same command runs the missing ones",
+                    file=sys.stderr,
+                    flush=True,
+                )
+                abandon(EXIT_INTERRUPTED)
             raise
+
+
+def abandon(code: int) -> None:
+    """End the process now, without joining the threads still inside the core."""
+    os._exit(code)
 
 
 def folder_points(out: Path) -> list[dict]:

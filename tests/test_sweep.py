@@ -168,3 +168,41 @@ def test_sigterm_keeps_every_run_that_ended_and_cancels_the_rest(tmp_path):
     assert proc.returncode == 130 and "finished runs are kept" in err, err
     assert sorted(kept) == sorted(p["seed"] for p in printed)  # every run that ended is on disk
     assert 2 <= len(kept) < 40  # the run under way was kept, the ones not started were cancelled
+
+
+def test_a_second_interrupt_drops_the_runs_under_way(monkeypatch, capsys):
+    """The first interrupt waits for the runs under way; a second one ends the process at once
+    (the core's threads cannot be stopped), the finished runs kept. In this process: the core's
+    run is a stand-in that blocks, the signals are this process's own SIGINTs."""
+    import os
+    import signal
+    import threading
+    import types
+
+    import experiments.sweep as sweep
+
+    release = threading.Event()
+
+    def fake_run(scen, settings, seed):
+        if seed > 0:
+            release.wait(60)
+        return types.SimpleNamespace(seed=seed)
+
+    def fake_abandon(code):
+        release.set()
+        raise SystemExit(code)
+
+    kept = []
+
+    def keep(res):
+        kept.append(res.seed)
+        for delay in (0.3, 1.0):  # the first lands while the point waits, the second while draining
+            threading.Timer(delay, os.kill, (os.getpid(), signal.SIGINT)).start()
+
+    monkeypatch.setattr(sweep, "exact_run", fake_run)
+    monkeypatch.setattr(sweep, "abandon", fake_abandon)
+    with pytest.raises(SystemExit) as stop:
+        sweep.run_point(None, None, [0, 1, 2, 3], 2, keep)
+    err = capsys.readouterr().err
+    assert stop.value.code == 130 and kept == [0]
+    assert "waiting for the 2 run(s) under way" in err and "the runs under way are dropped" in err
