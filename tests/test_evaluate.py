@@ -773,7 +773,7 @@ def test_an_evaluation_with_the_pibt_planner_labels_its_exact_runs_pibt(evaluate
     assert {r["simulator"] for r in read(out2 / "summary.csv")} <= {"pibt", "screen", ""}
     assert {r["simulator"] for r in read(out2 / "tile_usage_train.csv.gz")} == {"pibt"}
     md = (out2 / "summary.md").read_text()
-    assert "pibt = exact" in md and "| rhcr |" not in md
+    assert "pibt = exact" in md and "| rhcr |" not in md and "with the PIBT planner instead of RHCR" in md
     # the RHCR evaluation of the same run says rhcr, as before
     assert "rhcr" in {r["simulator"] for r in read(out / "runs.csv")}
 

@@ -175,3 +175,10 @@ def test_an_exact_run_of_pibt_is_remembered_apart_from_rhcrs():
     assert exact_run_key(WAREHOUSE, "warehouse_even", 10, 0, rhcr) == exact_run_key(
         WAREHOUSE, "warehouse_even", 10, 0, ExactSettings(100, None, 10, 5, {})
     )
+
+
+def test_planners_are_titled_for_tables_and_legends():
+    from nca_qd.sim.rhcr import PLANNERS, planner_title
+
+    titles = {p: planner_title(p) for p in PLANNERS}
+    assert titles == {"rhcr": "RHCR", "pibt": "PIBT", "pibt_swap": "PIBT with swap"}

@@ -29,6 +29,7 @@ from nca_qd.evaluation.tables import (
     summary_rows,
     write_csv,
 )
+from nca_qd.sim.rhcr import planner_title
 
 log = logging.getLogger("nca_qd.evaluate")
 
@@ -274,7 +275,7 @@ def _write_detail(
                 trav = build_scenario(array_to_rows(lay.layout, tiles), scenario).traversable
                 panels.append(
                     (
-                        f"{lay.label} ({lab(sim).upper() if sim == 'rhcr' else 'screen'}, "
+                        f"{lay.label} ({planner_title(lab(sim)) if sim == 'rhcr' else 'screen'}, "
                         f"{len(vis)} run(s), N_a={r.n_agents})",
                         mean,
                         trav,

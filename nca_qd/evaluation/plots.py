@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from nca_qd.evaluation.records import finite, parse_size
+from nca_qd.sim.rhcr import planner_title
 
 
 def _style(labels: Sequence[str]) -> dict[str, Any]:
@@ -76,7 +77,7 @@ def plot_curves(
             if sim == "screen":
                 ax.plot(xs, ys, "--", color=c, marker="o", mfc="none", ms=4, label=f"{lab} (screen)")
             else:
-                ax.plot(xs, ys, "-", color=c, marker="s", ms=5, label=f"{lab} ({sim.upper()})")
+                ax.plot(xs, ys, "-", color=c, marker="s", ms=5, label=f"{lab} ({planner_title(sim)})")
             if band is not None:
                 lo = np.array(
                     [r.get(band[0]) if finite(r.get(band[0])) else np.nan for r in pts], dtype=float
@@ -153,7 +154,7 @@ def plot_sizes(path: str | Path, rows: Sequence[Mapping[str, Any]]) -> None:
                 continue
             xs = [pos[r["size"]] for r in pts]
             style = dict(ls="--", marker="o", mfc="none") if sim == "screen" else dict(ls="-", marker="s")
-            name = f"{lab} ({'screen' if sim == 'screen' else sim.upper()})"
+            name = f"{lab} ({'screen' if sim == 'screen' else planner_title(sim)})"
             axes[0].plot(xs, [r["max_throughput_mean"] for r in pts], color=colours[lab], label=name, **style)
             err = [
                 (x, r["max_throughput_mean"], r["max_throughput_se"])
@@ -208,7 +209,7 @@ def plot_tasks(
             ls,
             color=colours[lab],
             lw=1,
-            label=f"{lab} ({'screen' if sim == 'screen' else sim.upper()})",
+            label=f"{lab} ({'screen' if sim == 'screen' else planner_title(sim)})",
         )
         if np.isfinite(lo).any():
             ax.fill_between(t, ma(lo), ma(hi), color=colours[lab], alpha=0.15, linewidth=0)

@@ -21,6 +21,7 @@ from nca_qd.errors import NcaQdError
 from nca_qd.evaluation.plan import Plan
 from nca_qd.evaluation.records import EvalLayout, finite, format_value
 from nca_qd.evaluation.stats import request_runs, run_stats
+from nca_qd.sim.rhcr import planner_title
 
 
 def write_csv(
@@ -234,7 +235,7 @@ def summary_markdown(name: str, rows: Sequence[Mapping[str, Any]], T: int, plann
     return (
         f"## {name}: main comparison (T={T}; mean ± standard error; screen = JAX "
         f"screening approximation, {planner} = exact"
-        + ("" if planner == "rhcr" else f", here with the {planner.upper()} planner instead of RHCR")
+        + ("" if planner == "rhcr" else f", here with the {planner_title(planner)} planner instead of RHCR")
         + ")\n\n"
         + markdown_table(shown, cols)
     )

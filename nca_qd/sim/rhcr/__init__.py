@@ -42,6 +42,7 @@ except ImportError as exc:  # pragma: no cover - only when the package was not b
 
 __all__ = [
     "PLANNERS",
+    "planner_title",
     "PLANNER_KEYS",
     "STARTS",
     "SimResult",
@@ -244,6 +245,14 @@ PLANNER_KEYS = (
 )
 # RHCR (windowed PBS, as the paper) / lifelong PIBT (one step per call) / PIBT with swap (LaCAM3's)
 PLANNERS = ("rhcr", "pibt", "pibt_swap")
+_TITLES = {"rhcr": "RHCR", "pibt": "PIBT", "pibt_swap": "PIBT with swap"}
+
+
+def planner_title(name: str) -> str:
+    """A planner's name as tables and legends print it (``pibt_swap``: "PIBT with swap")."""
+    return _TITLES.get(name, name.upper())
+
+
 STARTS = ("random", "reference")  # start cells drawn per seed / the reference's one configuration
 
 
