@@ -8,12 +8,12 @@ Runs every (layout, agent count, seed) that ``out`` does not hold yet, as
 run's line to ``<out>/<layout stem>_<agents>.jsonl`` the moment it ends: Ctrl-C or SIGTERM
 waits for the runs in flight and keeps them (a second one drops them and ends at once), and
 the same command goes on from there (more seeds or more agent counts later extend the same
-folder). ``sweep_config.yaml`` pins the folder's settings
-and each layout's digest; a later call with other settings or a changed layout file is
-refused (one line, exit 2) rather than mixing runs. Then writes, over every run the folder
-holds (not only this call's), ``summary.csv`` (per layout and agent count: runs, success
-rate, throughput mean ± s.e. over all runs and over the runs that flowed, CPU seconds),
-``summary.md`` and ``throughput_vs_agents.png``.
+folder). ``sweep_config.yaml`` pins the folder's settings and each layout's digest; a later
+call with other settings or a changed layout file is refused (one line, exit 2) rather than
+mixing runs. Then writes, over every run the folder holds (not only this call's),
+``summary.csv`` (per layout and agent count: runs, success rate, throughput mean ± s.e. over
+all runs and over the runs that flowed, CPU seconds), ``summary.md`` and
+``throughput_vs_agents.png``.
 """
 
 from __future__ import annotations
