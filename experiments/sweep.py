@@ -37,7 +37,7 @@ from experiments.simulate import RunSettings, _int, exact_run
 from nca_qd import memory
 from nca_qd.errors import NcaQdError
 from nca_qd.io import atomic_write_text, load_map
-from nca_qd.sim.rhcr import PLANNER_KEYS
+from nca_qd.sim.rhcr import PLANNER_KEYS, planner_title
 from nca_qd.sim.scenario import build_scenario, tiles_for
 
 # The settings a folder's runs share (anything else, e.g. threads, may change between calls).
@@ -153,7 +153,8 @@ def write_summary(out: Path, rows: list[dict], planner: str) -> None:
     lines = [
         f"Throughput (mean ± s.e. over all runs; a congested run counts the tasks it finished over T) "
         f"and how many runs flowed (ended without congestion); then the throughput of the horizon's last "
-        f"tenth (mean over runs; a jam that grows without stopping a run shows there); planner {planner}.",
+        f"tenth (mean over runs; a jam that grows without stopping a run shows there); "
+        f"planner {planner_title(planner)}.",
         "",
         "| agents | " + " | ".join(labels) + " |",
         "|---" * (len(labels) + 1) + "|",
@@ -199,7 +200,8 @@ def plot_points(path: Path, rows: list[dict], planner: str) -> None:
             ax.plot(lx, ly, ":", color=f"C{i}", marker="v", ms=5, label=f"{lab}: last tenth of T")
     ax.set_xlabel("agents")
     ax.set_ylabel("throughput (tasks per step)")
-    ax.set_title(f"throughput against agents ({planner}); bars: 95 % interval over runs", fontsize=8)
+    title = f"throughput against agents ({planner_title(planner)}); bars: 95 % interval over runs"
+    ax.set_title(title, fontsize=8)
     ax.legend(fontsize=7, loc="best")
     ax.grid(alpha=0.3)
     save_figure(fig, path)
