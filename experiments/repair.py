@@ -95,10 +95,11 @@ def main(argv: list[str]) -> int:
     }
     if res.layout is not None:
         extra["repair"] = {k: line[k] for k in ("status", "hamming", "similarity", "seconds")}
-        save_map(
-            cfg.out,
-            MapFile(name=f"{name}_repaired", rows=array_to_rows(res.layout, tiles), extra=extra),
-        )
+        suffix = "_repaired"
+        if opts.get("keep_aisles"):  # not the paper's repair: the file and its name say so
+            extra["repair"]["keep_aisles"] = True
+            suffix += "_aisles_kept"
+        save_map(cfg.out, MapFile(name=name + suffix, rows=array_to_rows(res.layout, tiles), extra=extra))
         if cfg.render:
             from nca_qd.viz import render_layouts
 

@@ -389,3 +389,37 @@ def test_connectivity_option_is_checked_and_absent_from_keys_at_its_default():
     assert repair_key("warehouse_even", lay, opts) != repair_key(
         "warehouse_even", lay, {**opts, "connectivity": "lazy"}
     )
+
+
+def test_keep_aisles_holds_the_shelf_free_rows_at_the_same_distance():
+    """keep_aisles: the shelf the count asks for goes into the shelf row, never into the rows
+    the input leaves without shelves (held as drawn), at the plain repair's proven distance;
+    without it the equally near repairs include shelves in those rows."""
+    region = np.array([[0] * 6, [1, 2, 1, 2, 0, 0], [0] * 6], dtype=np.int32)
+    lay = wh.assemble(region)
+    opts = dict(n_shelves=3, method="full", time_limit_s=30, tie_break="random")
+    plain = [repair("warehouse_even", lay, seed=s, **opts) for s in range(8)]
+    kept = [repair("warehouse_even", lay, seed=s, keep_aisles=True, **opts) for s in range(8)]
+    for res in plain + kept:
+        assert_result_ok(res, "warehouse_even", lay, n_shelves=3)
+        assert res.status == "optimal" and res.hamming == 1
+    aisle = wh.aisle_rows(lay)
+    assert aisle[[0, 2]][:, wh.FRAME : -wh.FRAME].all() and not aisle[1].any()
+    assert all(np.array_equal(r.layout[aisle], lay[aisle]) for r in kept)
+    assert any((r.layout[aisle] == wh.SHELF).any() for r in plain)
+
+
+def test_keep_aisles_is_refused_where_a_family_has_none_and_absent_from_keys_off():
+    from nca_qd.errors import NcaQdError
+    from nca_qd.scoring.keys import repair_key
+
+    with pytest.raises(NcaQdError, match="manufacturing layouts have no aisles"):
+        repair("manufacturing", np.zeros((6, 7), np.int32), n_agents=12, keep_aisles=True)
+    lay = wh.assemble(np.zeros((3, 4), np.int32))
+    opts = {"method": "hybrid", "n_shelves": 1}
+    assert repair_key("warehouse_even", lay, opts) == repair_key(
+        "warehouse_even", lay, {**opts, "keep_aisles": False}
+    )
+    assert repair_key("warehouse_even", lay, opts) != repair_key(
+        "warehouse_even", lay, {**opts, "keep_aisles": True}
+    )

@@ -195,3 +195,22 @@ def test_render_crops_a_wide_layout_to_its_corner(tmp_path, monkeypatch, capsys)
     assert run(render_cli, [f"layout={src}", f"out={corner}", "crop=[3]"], monkeypatch) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "crop must be [rows, cols]" in err
+
+
+def test_keep_aisles_holds_the_shelf_free_rows_and_the_file_says_so(tmp_path, monkeypatch, capsys):
+    src = write(tmp_path, GOOD)
+    out = tmp_path / "out.json"
+    argv = ["domain=warehouse_even", f"layout={src}", f"out={out}", "n_shelves=6", "keep_aisles=true"]
+    assert run(repair_cli, argv, monkeypatch) == 0
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["valid"] is True
+    lay = load_map(out, wh.TILES).to_array(wh.TILES)
+    before = load_map(src).to_array(wh.TILES)
+    held = wh.aisle_rows(before)
+    assert held.any() and np.array_equal(lay[held], before[held])
+    written = json.loads(out.read_text())
+    assert written["repair"]["keep_aisles"] is True and written["name"] == "t_repaired_aisles_kept"
+    src = write(tmp_path, ["." * 7] * 6, name="m.json")
+    argv = ["domain=manufacturing", f"layout={src}", f"out={out}", "n_agents=12", "keep_aisles=true"]
+    assert run(repair_cli, argv, monkeypatch) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "manufacturing layouts have no aisles to keep" in err[0]

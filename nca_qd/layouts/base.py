@@ -126,6 +126,11 @@ class LayoutKind:
         """Validity of a full map of ``shape`` (the repair's constraints)."""
         raise NotImplementedError
 
+    def aisles(self, layout: np.ndarray) -> np.ndarray | None:
+        """``[h, w]`` bool: the cells of ``layout``'s aisles that ``repair(keep_aisles=True)``
+        holds as drawn; None where the family has no such notion."""
+        return None
+
     def measures(self, layouts: np.ndarray) -> np.ndarray:
         """``[b, H, W]`` repaired full layouts -> ``[b, m]`` measures."""
         raise NotImplementedError

@@ -69,6 +69,15 @@ def storage(layout: np.ndarray) -> np.ndarray:
     return np.asarray(layout)[..., :, FRAME:-FRAME]
 
 
+def aisle_rows(layout: np.ndarray) -> np.ndarray:
+    """``[h, w]`` bool: the storage cells of the rows that hold no shelf (the corridors that
+    lead to the workstation columns), for ``repair(keep_aisles=True)``."""
+    layout = np.asarray(layout)
+    mask = np.zeros(layout.shape, dtype=bool)
+    mask[~(storage(layout) == SHELF).any(axis=1), FRAME:-FRAME] = True
+    return mask
+
+
 def human_layout(shape: tuple[int, int]) -> np.ndarray:
     """The human-designed warehouse of any full-map size, as the paper's appendix draws them:
     the frame (workstation columns), then rows repeating [aisle, endpoints, shelves, endpoints]
@@ -189,6 +198,9 @@ class Warehouse(LayoutKind):
 
     def rules(self, shape, *, n_shelves=None, n_agents=200):
         return rules(shape, n_shelves=n_shelves)
+
+    def aisles(self, layout):
+        return aisle_rows(layout)
 
     def measures(self, layouts):
         """Storage-area entropy and shelf components ``[b, 2]``."""

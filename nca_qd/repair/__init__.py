@@ -32,6 +32,15 @@ random costs drawn per layout (seeded by ``seed`` and the layout's bytes: the sa
 the same repair), the paper's "MILP solver arbitrarily selects an optimal solution when
 multiple solutions exist"; distances, ``optimal`` and Delta are unchanged by it.
 
+Aisles (warehouses, beyond the paper): ``keep_aisles=True`` holds the storage rows the input
+leaves without shelves exactly as drawn, so the repair meets the shelf count and the
+adjacency rules elsewhere. The paper's repair is indifferent to where a shelf goes; at
+140x500 the nearest repair of a grown layout put 27 shelves at the ends of its shelf-free
+rows, beside the workstation column, and an equally near one that keeps them free raises its
+throughput under PIBT (results/warehouse_even_qd/README.md). Off by default: the paper's
+protocol. The distance is to the same input, so Delta stays comparable; a repair that must
+cross an aisle to be valid gets a larger distance or no layout.
+
 Statuses: ``optimal`` (proven), ``feasible`` (valid, optimality not proven: time limit or
 neighbourhood search), ``infeasible`` (proven that no valid layout exists), ``no_solution``
 (nothing valid found in time). In the QD loop a generator whose repair has no layout gets the
@@ -132,6 +141,7 @@ def repair(
     milp_time_s: float = 2.0,
     tie_break: str = "none",
     connectivity: str = "flow",
+    keep_aisles: bool = False,
 ) -> RepairResult:
     """Repair a full layout (indices into :func:`tiles_of`); see the module docstring."""
     t0 = time.perf_counter()
@@ -144,6 +154,8 @@ def repair(
     layout = np.asarray(layout, dtype=np.int32)
     memory.check(memory.repair_bytes(layout.size), f"repairing a {layout.shape[0]}x{layout.shape[1]} layout")
     rules = make_rules(domain_name, layout.shape, n_shelves=n_shelves, n_agents=n_agents)
+    if keep_aisles:
+        rules = hold_aisles(domain_name, layout, rules)
     if tie_break == "random":
         rules = dataclasses.replace(rules, tie_costs=tie_costs(layout, rules, seed))
     get_layout(domain_name).check_frame(layout, "layout")
@@ -236,6 +248,17 @@ def _bound_and_gap(details: dict[str, Any], status: str, objective: float | None
     details["bound"] = bound
     if objective is not None:
         details["gap"] = 0.0 if objective <= 0 else max(0.0, (objective - bound) / objective)
+
+
+def hold_aisles(domain_name: str, layout: np.ndarray, rules: Rules) -> Rules:
+    """``rules`` with the cells of ``layout``'s aisles (:meth:`LayoutKind.aisles`) fixed as drawn."""
+    mask = get_layout(domain_name).aisles(layout)
+    if mask is None:
+        raise NcaQdError(f"keep_aisles: {domain_name} layouts have no aisles to keep (warehouses only)")
+    base = rules.fixed_layout if rules.fixed_layout is not None else np.zeros(layout.shape, np.int32)
+    return dataclasses.replace(
+        rules, fixed=rules.fixed | mask, fixed_layout=np.where(mask, layout, base).astype(np.int32)
+    )
 
 
 def tie_costs(layout: np.ndarray, rules: Rules, seed: int) -> np.ndarray:

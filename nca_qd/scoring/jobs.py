@@ -33,6 +33,7 @@ REPAIR_OPTIONS = (
     "seed",
     "milp_time_s",
     "connectivity",
+    "keep_aisles",
 )
 
 

@@ -85,6 +85,10 @@ def screen_run_key(
     return _digest(spec)
 
 
+# Repair options added after records were keyed, at their defaults (left out of the digest).
+_LATER_DEFAULTS = (("connectivity", "flow"), ("keep_aisles", False))
+
+
 def repair_key(domain_name: str, layout: np.ndarray, options: Mapping[str, Any]) -> str:
     """Digest of a repair's inputs: the domain, the layout before repair (shape and tiles) and
     every option (N_s, agents, method, limits, seed)."""
@@ -93,8 +97,8 @@ def repair_key(domain_name: str, layout: np.ndarray, options: Mapping[str, Any])
         "domain": domain_name,
         "shape": list(a.shape),
         "layout_sha256": hashlib.sha256(a.tobytes()).hexdigest(),
-        # (connectivity is absent at its default, flow: recorded keys stay valid)
-        "options": {k: options[k] for k in sorted(options) if (k, options[k]) != ("connectivity", "flow")},
+        # (options added later are absent at their defaults: recorded keys stay valid)
+        "options": {k: options[k] for k in sorted(options) if (k, options[k]) not in _LATER_DEFAULTS},
     }
     return _digest(spec)
 

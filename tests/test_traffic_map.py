@@ -1,0 +1,36 @@
+"""benchmarks.traffic_map: the visits are every agent's every timestep, the shares partition
+them, a recorded run is reused, and a bad file is one line, exit 2."""
+
+import json
+
+import numpy as np
+
+from benchmarks import traffic_map
+from nca_qd.io import reference_maps_dir
+
+HUMAN = reference_maps_dir() / "warehouse" / "human_33x36.json"
+
+
+def test_visits_count_every_agent_timestep_and_a_recorded_run_is_reused(tmp_path, monkeypatch, capsys):
+    assert traffic_map.main([str(HUMAN), "--agents", "20", "--T", "60", "--out", str(tmp_path)]) == 0
+    row = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    with np.load(tmp_path / "human_33x36_20_s0.npz") as z:
+        visits = z["visits"]
+    assert int(visits.sum()) == 20 * 60  # agent-timesteps 1..T, every agent somewhere
+    lay = np.array([list(r) for r in traffic_map.load_map(HUMAN).rows])
+    assert not visits[lay == "@"].any()  # nobody stands on a shelf
+    assert abs(row["near_workstations"] + row["corridor_rows"] + row["other_storage"] - 1) < 1e-3
+    assert (tmp_path / "traffic_20.png").stat().st_size > 1000
+
+    def no_simulation(*a, **k):
+        raise AssertionError("simulated again")
+
+    monkeypatch.setattr(traffic_map, "exact_run", no_simulation)
+    assert traffic_map.main([str(HUMAN), "--agents", "20", "--T", "60", "--out", str(tmp_path)]) == 0
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1]) == row
+
+
+def test_a_missing_layout_is_one_line_exit_2(tmp_path, capsys):
+    assert traffic_map.main([str(tmp_path / "none.json"), "--agents", "5", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error:") and "none.json" in err[0]
