@@ -38,6 +38,10 @@ class RunCurve:
     values: dict[str, np.ndarray]
 
 
+class NotStarted(NcaQdError):
+    """A run directory whose search has not finished an iteration yet."""
+
+
 def read_run(run_dir: str | Path) -> RunCurve:
     """A run directory's curve; one clear error when it is not a run with metrics."""
     run_dir = Path(run_dir)
@@ -48,7 +52,7 @@ def read_run(run_dir: str | Path) -> RunCurve:
     with path.open() as fh:
         rows = list(csv.DictReader(fh))
     if not rows:
-        raise NcaQdError(f"{run_dir}: {METRICS_FILE} has no iterations yet")
+        raise NotStarted(f"{run_dir}: {METRICS_FILE} has no iterations yet")
     measures = "+".join(cfg.domain.measures.names)
     return RunCurve(
         path=run_dir,
@@ -85,6 +89,24 @@ def find_runs(paths: Iterable[str | Path]) -> list[Path]:
     if not found:
         raise NcaQdError(f"no run directories (with {METRICS_FILE}) in {[str(p) for p in paths]}")
     return found
+
+
+def read_runs(paths: Iterable[str | Path]) -> tuple[list[RunCurve], list[Path]]:
+    """The curves of the runs at ``paths`` and the runs found below a folder that have no
+    iteration yet (an arm a campaign has just started: left out and named, not an error; a run
+    named itself must have one)."""
+    named = {Path(p) for p in paths}
+    curves, waiting = [], []
+    for run in find_runs(paths):
+        try:
+            curves.append(read_run(run))
+        except NotStarted:
+            if run in named:
+                raise
+            waiting.append(run)
+    if not curves:
+        raise NcaQdError(f"no run with iterations yet in {[str(p) for p in paths]}")
+    return curves, waiting
 
 
 def _t95(n: int) -> float:
@@ -219,11 +241,17 @@ def compare(paths: Iterable[str | Path], out: str | Path, name: str = "compariso
     ``<name>_agents.png``). Returns the Markdown and the files written."""
     if not name or Path(name).name != name or name.startswith("."):
         raise NcaQdError(f"name must be a plain file name stem (no folders), got {name!r}")
-    curves = [read_run(p) for p in find_runs(paths)]
+    curves, waiting = read_runs(paths)
     summaries = summarise(curves)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     table = table_markdown(summaries)
+    if waiting:
+        table += (
+            "\nNot in these tables yet (no iteration finished): "
+            + ", ".join(f"`{w}`" for w in waiting)
+            + ".\n"
+        )
     from nca_qd.compare_curves import curves_markdown, read_curves
     from nca_qd.compare_curves import plot_curves as plot_agent_curves
     from nca_qd.compare_evaluation import read_arms, tables_markdown, write_scaling_csv

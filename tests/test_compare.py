@@ -57,6 +57,21 @@ def test_a_folder_without_runs_is_one_clear_error(tmp_path):
             compare([tmp_path], tmp_path / "out", name=bad)
 
 
+def test_an_arm_just_started_is_named_not_fatal_unless_asked_for_itself(tmp_path):
+    """A campaign's next arm has a metrics.csv with its header only: the folder's comparison
+    leaves it out and says so; asked for by itself, it is one clear error."""
+    _fake_run(tmp_path / "done", "cma_mae", 0, [(150, 10, 0.1)])
+    _fake_run(tmp_path / "next", "cma_mae", 1, [])
+    table, _ = compare([tmp_path], tmp_path / "out")
+    assert "| cma_mae | 1 (0) |" in table
+    assert f"Not in these tables yet (no iteration finished): `{tmp_path / 'next'}`." in table
+    with pytest.raises(NcaQdError, match="has no iterations yet"):
+        compare([tmp_path / "next"], tmp_path / "out")
+    _fake_run(tmp_path / "later" / "arm", "cma_mae", 2, [])
+    with pytest.raises(NcaQdError, match="no run with iterations yet"):
+        compare([tmp_path / "later"], tmp_path / "out")
+
+
 def test_arms_that_differ_in_alpha_are_not_pooled(tmp_path):
     """The paper compares CMA-MAE at α = 0, 1 and 5: one group each, and the paper's α = 5 row
     beside the α = 5 arm only (a run saved with alpha: null takes its domain's α)."""
