@@ -11,8 +11,9 @@ and horizon given here) and keeps the core's ``tile_visits`` (agent-timesteps on
 then draws ``<out>/traffic_<agents>.png``: each layout's mean occupancy (visits / T, log scale)
 and the occupancy by column. It prints, per layout, the throughput and where the agent-time
 goes: in the workstation columns and the ``--edge`` storage columns beside them, in the rest of
-the storage rows without a shelf (the corridors), in the rest of the storage area, and on the
-most occupied 1 % of tiles (where queues stand).
+the storage rows without a shelf (the corridors), in the rest of the storage area, on the
+most occupied 1 % of tiles, and on tiles occupied over nine tenths of the horizon (where agents
+stand: a standing queue or a jam).
 """
 
 from __future__ import annotations
@@ -60,10 +61,16 @@ def _with_agents(cfg, agents: int):
     return OmegaConf.merge(cfg, {"agents": agents})
 
 
-def shares(rows: list[str], visits: np.ndarray, edge: int, frame: int = 2) -> dict:
+# A tile occupied over this share of the horizon holds a standing queue or a jam.
+PACKED = 0.9
+
+
+def shares(rows: list[str], visits: np.ndarray, T: int, edge: int, frame: int = 2) -> dict:
     """Where the agent-time goes (shares of all agent-timesteps; the first three sum to 1): the
     workstation columns and ``edge`` storage columns beside them, the corridor rows' cells
-    beyond them, the rest of the storage area; and the most occupied 1 % of tiles."""
+    beyond them, the rest of the storage area; then the most occupied 1 % of tiles and the
+    tiles occupied over :data:`PACKED` of the horizon (a standing queue or a jam: a tile an
+    agent leaves is soon taken again)."""
     lay = np.array([list(r) for r in rows])
     v = visits.astype(np.float64)
     total = v.sum()
@@ -81,6 +88,7 @@ def shares(rows: list[str], visits: np.ndarray, edge: int, frame: int = 2) -> di
         "corridor_rows": v[corridor & ~near].sum() / total,
         "other_storage": v[storage & ~corridor & ~near].sum() / total,
         "top_1pct_tiles": top / total,
+        "on_packed_tiles": v[v > PACKED * T].sum() / total,
     }
 
 
@@ -144,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
             r = run_once(path, args.domain, args.agents, args.planner, args.T, args.seed, args.out)
             runs[path.stem] = r
             row = {"layout": path.stem, "agents": args.agents, "throughput": round(r["throughput"], 3)}
-            row.update({k: round(v, 4) for k, v in shares(r["rows"], r["visits"], args.edge).items()})
+            row.update({k: round(v, 4) for k, v in shares(r["rows"], r["visits"], args.T, args.edge).items()})
             print(json.dumps(row), flush=True)
         draw(args.out / f"traffic_{args.agents}.png", runs, args.agents, args.planner, args.T)
     except (NcaQdError, OSError) as exc:

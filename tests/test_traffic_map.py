@@ -20,6 +20,8 @@ def test_visits_count_every_agent_timestep_and_a_recorded_run_is_reused(tmp_path
     lay = np.array([list(r) for r in traffic_map.load_map(HUMAN).rows])
     assert not visits[lay == "@"].any()  # nobody stands on a shelf
     assert abs(row["near_workstations"] + row["corridor_rows"] + row["other_storage"] - 1) < 1e-3
+    packed = visits[visits > 0.9 * 60].sum() / visits.sum()
+    assert abs(row["on_packed_tiles"] - packed) < 1e-3
     assert (tmp_path / "traffic_20.png").stat().st_size > 1000
 
     def no_simulation(*a, **k):
