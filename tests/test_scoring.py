@@ -851,7 +851,9 @@ def test_every_planner_setting_has_its_default_in_the_yamls_and_the_shipped_memo
     conf = Path(__file__).parents[1] / "experiments/conf"
     assert set(PLANNER_KEYS) <= set(OmegaConf.load(conf / "run.yaml").eval)
     assert set(PLANNER_KEYS) <= set(OmegaConf.load(conf / "evaluate.yaml").exact)
-    for run in ("warehouse_even_qd/cma_mae_a5_s0", "manufacturing_a5", "warehouse_uneven_a5"):
+    # (cma_mae_a1_s0 was fingerprinted before the repair's keep_aisles option, with it in config)
+    runs = ("warehouse_even_qd/cma_mae_a5_s0", "warehouse_even_qd/cma_mae_a1_s0", "manufacturing_a5")
+    for run in (*runs, "warehouse_uneven_a5"):
         run_dir = Path(__file__).parents[1] / "results" / run
         cfg = load_run_config(run_dir)
         saved = json.loads(str(np.load(run_dir / "eval_memo.npz")["fingerprint"]))

@@ -87,6 +87,14 @@ def screen_run_key(
 
 # Repair options added after records were keyed, at their defaults (left out of the digest).
 _LATER_DEFAULTS = (("connectivity", "flow"), ("keep_aisles", False))
+# ... and after searches' memos were fingerprinted (connectivity was in them by then).
+_MEMO_LATER_DEFAULTS = (("keep_aisles", False),)
+
+
+def memo_repair_options(options: Mapping[str, Any]) -> dict[str, Any]:
+    """The repair options a search memo's fingerprint names: those added later are left out at
+    their defaults, so that a search resumed under a newer version keeps its memo."""
+    return {k: v for k, v in options.items() if (k, v) not in _MEMO_LATER_DEFAULTS}
 
 
 def repair_key(domain_name: str, layout: np.ndarray, options: Mapping[str, Any]) -> str:

@@ -67,7 +67,7 @@ from nca_qd.scoring.jobs import (
     repair_job,
     repair_options,
 )
-from nca_qd.scoring.keys import layout_key
+from nca_qd.scoring.keys import layout_key, memo_repair_options
 from nca_qd.scoring.memo import MEMO_FILE, EvalMemo, first_of_each
 from nca_qd.scoring.settings import ScoringConfig
 from nca_qd.sim.free_flow import free_flow_throughput, rhcr_estimate
@@ -179,7 +179,7 @@ class MapfScorer:
             "n_agents": self.n_agents,
             "T": self.T,
             "n_runs": self.n_runs,
-            "repair": self.repair_opts,
+            "repair": memo_repair_options(self.repair_opts),
             "exact_time_limit_s": self.cfg.exact_time_limit_s,
             "rhcr_version": RHCR_VERSION,
         }
