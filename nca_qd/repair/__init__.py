@@ -34,10 +34,9 @@ multiple solutions exist"; distances, ``optimal`` and Delta are unchanged by it.
 
 Aisles (warehouses, beyond the paper): ``keep_aisles=True`` holds the storage rows the input
 leaves without shelves exactly as drawn, so the repair meets the shelf count and the
-adjacency rules elsewhere. The paper's repair is indifferent to where a shelf goes; at
-140x500 the nearest repair of a grown layout put 27 shelves at the ends of its shelf-free
-rows, beside the workstation column, and an equally near one that keeps them free raises its
-throughput under PIBT (results/warehouse_even_qd/README.md). Off by default: the paper's
+adjacency rules elsewhere. The paper's repair is indifferent to where a shelf goes and may
+close a corridor at its end with one; what that costs a layout's throughput, and where it does
+not matter, is measured in docs/benchmarks.md (140x500). Off by default: the paper's
 protocol. The distance is to the same input, so Delta stays comparable; a repair that must
 cross an aisle to be valid gets a larger distance or no layout.
 
