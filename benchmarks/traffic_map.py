@@ -29,6 +29,7 @@ from experiments.cli import compose_config
 from experiments.simulate import RunSettings, exact_run
 from nca_qd.errors import NcaQdError
 from nca_qd.io import load_map
+from nca_qd.layouts import warehouse as wh
 from nca_qd.sim.rhcr import planner_title
 from nca_qd.sim.scenario import build_scenario, tiles_for
 
@@ -65,21 +66,20 @@ def _with_agents(cfg, agents: int):
 PACKED = 0.9
 
 
-def shares(rows: list[str], visits: np.ndarray, T: int, edge: int, frame: int = 2) -> dict:
+def shares(rows: list[str], visits: np.ndarray, T: int, edge: int) -> dict:
     """Where the agent-time goes (shares of all agent-timesteps; the first three sum to 1): the
     workstation columns and ``edge`` storage columns beside them, the corridor rows' cells
     beyond them, the rest of the storage area; then the most occupied 1 % of tiles and the
     tiles occupied over :data:`PACKED` of the horizon (a standing queue or a jam: a tile an
     agent leaves is soon taken again)."""
-    lay = np.array([list(r) for r in rows])
+    lay = np.array([[wh.TILES.index(c) for c in r] for r in rows], dtype=np.int32)
     v = visits.astype(np.float64)
     total = v.sum()
-    w = lay.shape[1]
+    w, frame = lay.shape[1], wh.FRAME
     near = np.zeros(lay.shape, bool)
     near[:, : frame + edge] = True
     near[:, w - frame - edge :] = True
-    corridor = np.zeros(lay.shape, bool)
-    corridor[~(lay[:, frame : w - frame] == "@").any(axis=1), frame : w - frame] = True
+    corridor = wh.aisle_rows(lay)  # the rows the repair's keep_aisles holds
     storage = np.zeros(lay.shape, bool)
     storage[:, frame : w - frame] = True
     top = np.sort(v.ravel())[::-1][: max(1, v.size // 100)].sum()
