@@ -4,7 +4,11 @@
 
 Prints the share of still / travelling / period-2 / other generators among the elites looked
 at and among the 10 best, and the 10 best one per line; ``out=`` writes one CSV row per elite
-(``nca_qd.dynamics`` defines the kinds). Bad input: one line on stderr, exit status 2.
+(``nca_qd.dynamics`` defines the kinds). In the warehouse and manufacturing domains it also
+prints how far each elite's layout at C (before repair) is from the domain's count rules at
+that size (the shelves a warehouse needs, the traversable tiles for its robots): a generator
+that settles can still grow a layout the repair has to redraw. Bad input: one line on stderr,
+exit status 2.
 """
 
 from __future__ import annotations
@@ -14,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from experiments.cli import check_writable, compose_config, main_guard
-from nca_qd.dynamics import Thresholds, classify, summarise
+from nca_qd.dynamics import Thresholds, classify, count_misses, summarise
 from nca_qd.errors import NcaQdError
 from nca_qd.io import atomic_write_text
 
@@ -62,12 +66,17 @@ def main(argv: list[str]) -> int:
     shape, n_iters = domain.gen_shape(cfg.size), domain.nca_iters(cfg.size)
     seed = domain.seed(shape)
     th = Thresholds(float(cfg.tol), float(cfg.shift_tol), int(cfg.max_shift))
+    counts = _count_rules(run_cfg["domain"], domain, cfg.size)
     rows = []
     for i in range(0, len(cells), int(cfg.batch)):
         layouts, tied = generator.trajectory(genotypes[i : i + cfg.batch], seed, n_iters, int(cfg.extra))
         for j, cell in enumerate(cells[i : i + cfg.batch]):
             row = {"cell": int(cell), "objective": float(objective[cell]), "tied": float(tied[j])}
             row.update(classify(layouts[j], domain.n_tiles, th))
+            if counts:
+                misses = count_misses(domain.assemble(layouts[j][0]), counts)
+                row.update({_slug(m["name"]): m["got"] for m in misses})
+                row["count_miss"] = max(float(m["miss"]) for m in misses)
             rows.append(row)
     where = f"{shape[0]}x{shape[1]}, C={n_iters}..{n_iters + cfg.extra}"
     for label, part in (("elites", rows), ("10 best", rows[:10])):
@@ -79,12 +88,51 @@ def main(argv: list[str]) -> int:
             f"{r['changed_2']:.2f} (C+1 / C+2), moved {r['moved_mismatch_1']:.2f} / "
             f"{r['moved_mismatch_2']:.2f}, tile share swing {r['share_swing']:.2f}, tied {r['tied']:.2f}"
         )
+    for rule in counts:
+        _print_counts(rule, rows, where)
     if out is not None:
-        lines = [",".join(COLUMNS)]
-        lines += [",".join(_fmt(r[c]) for c in COLUMNS) for r in rows]
+        columns = COLUMNS + ((*(_slug(r.name) for r in counts), "count_miss") if counts else ())
+        lines = [",".join(columns)]
+        lines += [",".join(_fmt(r[c]) for c in columns) for r in rows]
         atomic_write_text(out, "\n".join(lines) + "\n")
         print(f"wrote {out}")
     return 0
+
+
+def _count_rules(domain_cfg, domain, which: str) -> tuple:
+    """The domain's count rules at size ``which`` (its config's shelf and agent counts), or ()
+    for a domain without them (the maze)."""
+    from nca_qd.domains.multiagent import MultiAgentDomain
+    from nca_qd.repair import make_rules
+
+    if not isinstance(domain, MultiAgentDomain):
+        return ()
+    shape = domain.assemble(np.zeros(domain.gen_shape(which), dtype=np.int32)).shape
+    n_shelves = ((domain_cfg.get("repair") or {}).get("n_shelves") or {}).get(which)
+    n_agents = int((domain_cfg.get("n_agents") or {}).get(which) or 1)
+    return make_rules(domain.name, shape, n_shelves=n_shelves, n_agents=n_agents).counts
+
+
+def _print_counts(rule, rows: list[dict], where: str) -> None:
+    """One line per count rule: the elites' counts before repair against the rule's value."""
+    key = _slug(rule.name)
+    for label, part in (("elites", rows), ("10 best", rows[:10])):
+        got = np.array([r[key] for r in part])
+        if rule.op == ">=":
+            near = int((got >= rule.value).sum())
+            holds = "hold it"
+        else:
+            near = int((np.abs(got - rule.value) <= 0.1 * rule.value).sum())
+            holds = "within 10 %"
+        print(
+            f"{rule.name} {rule.op} {rule.value:,} before repair, {label} ({len(part)}, {where}): "
+            f"median {np.median(got):,.0f} (range {got.min():,}-{got.max():,}); "
+            f"{holds}: {near} of {len(part)}"
+        )
+
+
+def _slug(name: str) -> str:
+    return name.replace(" ", "_")
 
 
 def _fmt(v) -> str:

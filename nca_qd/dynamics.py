@@ -88,3 +88,19 @@ def summarise(kinds: list[str]) -> dict[str, float]:
     """Share of each kind (in :data:`KINDS` order)."""
     n = max(1, len(kinds))
     return {k: sum(1 for x in kinds if x == k) / n for k in KINDS}
+
+
+def count_misses(layout: np.ndarray, counts) -> list[dict[str, float | int | str]]:
+    """How far a full layout (before repair) is from each count rule (``nca_qd.layouts.rules.
+    CountRule``: ``count(tiles) == value`` or ``>= value``). A generator that settles at S can
+    still grow a different make-up at S_eval (the paper's alpha = 0 generator draws a quarter of
+    the 2,250 shelves its warehouse needs at 101x102), and the repair then draws the rest: the
+    layout scored is the repair's, not the generator's. ``miss``: the count's relative distance
+    from what the rule allows (0 when it holds)."""
+    out = []
+    for rule in counts:
+        got = int(np.isin(layout, sorted(rule.tiles)).sum())
+        short = rule.value - got if rule.op == ">=" else abs(rule.value - got)
+        miss = max(0, short) / max(1, rule.value)
+        out.append({"name": rule.name, "op": rule.op, "value": int(rule.value), "got": got, "miss": miss})
+    return out

@@ -12,7 +12,8 @@ import pytest
 
 from experiments import dynamics as dynamics_cli
 from experiments.cli import main_guard
-from nca_qd.dynamics import classify, shifted_mismatch, summarise
+from nca_qd.dynamics import classify, count_misses, shifted_mismatch, summarise
+from nca_qd.layouts.rules import CountRule
 from nca_qd.nca import NCAGenerator
 
 RNG = np.random.default_rng(0)
@@ -71,6 +72,22 @@ def test_trajectory_matches_generation_and_counts_ties():
     assert tied0[0] == 1.0 and (tied >= 0).all() and (tied <= 1).all()
 
 
+def test_count_misses_for_exact_and_lower_bound_rules():
+    layout = np.zeros((4, 5), dtype=np.int32)
+    layout[0, :3] = 1  # three of tile 1
+    rules = (
+        CountRule(frozenset({1}), "==", 4, "ones"),
+        CountRule(frozenset({0, 1}), ">=", 10, "zeros or ones"),
+        CountRule(frozenset({2}), ">=", 2, "twos"),
+    )
+    ones, both, twos = count_misses(layout, rules)
+    assert (ones["got"], ones["miss"]) == (3, pytest.approx(0.25))
+    assert (both["got"], both["miss"]) == (20, 0.0)  # more than the lower bound: no miss
+    assert (twos["got"], twos["miss"]) == (0, 1.0)
+    layout[1, :3] = 1  # six of tile 1: two too many is a miss too
+    assert count_misses(layout, rules[:1])[0]["miss"] == pytest.approx(0.5)
+
+
 def _cli(argv, monkeypatch):
     monkeypatch.setattr(sys, "argv", ["prog", *argv])
     with pytest.raises(SystemExit) as exc:
@@ -109,3 +126,18 @@ def test_the_command_classifies_the_shipped_archive(tmp_path, monkeypatch, capsy
     first = dict(zip(rows[0].split(","), rows[1].split(",")))
     assert first["cell"] == "4472" and first["kind"] == "period_2"
     assert float(first["changed_1"]) > 0.99 and float(first["changed_2"]) < 0.02
+    # its shelves before repair, counted here on its plain generation at C = 50 (the '@' tile of
+    # the full map): the warehouse at S needs 240
+    assert "shelves == 240 before repair, 10 best (3, 33x32" in text
+    from nca_qd.domains import make_domain
+    from nca_qd.evaluation.layouts import load_run
+    from nca_qd.pipeline import make_generator
+
+    run_cfg, archive = load_run(SHIPPED)
+    domain = make_domain(run_cfg["domain"])
+    region = make_generator(domain).generate(
+        np.asarray(archive["genotypes"])[[4472]], domain.seed((33, 32)), 50
+    )
+    full = domain.assemble(np.asarray(region)[0])
+    assert int(first["shelves"]) == int((full == domain.layout_tiles.index("@")).sum())
+    assert float(first["count_miss"]) == pytest.approx(abs(int(first["shelves"]) - 240) / 240, abs=1e-5)
