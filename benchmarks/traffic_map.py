@@ -13,7 +13,8 @@ and the occupancy by column. It prints, per layout, the throughput and where the
 goes: in the workstation columns and the ``--edge`` storage columns beside them, in the rest of
 the storage rows without a shelf (the corridors), in the rest of the storage area, on the
 most occupied 1 % of tiles, and on tiles occupied over nine tenths of the horizon (where agents
-stand: a standing queue or a jam).
+stand: a standing queue or a jam); and the jam's extent (``jam_rows``, ``jam_cols``: first,
+last, how many storage rows / columns have a quarter of their open tiles packed).
 """
 
 from __future__ import annotations
@@ -64,6 +65,8 @@ def _with_agents(cfg, agents: int):
 
 # A tile occupied over this share of the horizon holds a standing queue or a jam.
 PACKED = 0.9
+# A row or column with at least this share of its open tiles packed is inside the jam.
+JAM_LINE = 0.25
 
 
 def shares(rows: list[str], visits: np.ndarray, T: int, edge: int) -> dict:
@@ -90,6 +93,24 @@ def shares(rows: list[str], visits: np.ndarray, T: int, edge: int) -> dict:
         "top_1pct_tiles": top / total,
         "on_packed_tiles": v[v > PACKED * T].sum() / total,
     }
+
+
+def jam_extent(rows: list[str], visits: np.ndarray, T: int) -> dict:
+    """Where the jam stands: the first and last storage row and column in which at least
+    :data:`JAM_LINE` of the open (non-shelf) tiles are packed (occupied over :data:`PACKED` of
+    the horizon), and how many rows and columns are; ``None`` where none is. Two layouts can
+    hold the same agent-time on packed tiles in jams of different shape (a band across the
+    rows or a block bounded by them)."""
+    frame = wh.FRAME
+    open_ = np.array([[c != "@" for c in r] for r in rows])[:, frame:-frame]
+    packed = (visits[:, frame:-frame] > PACKED * T) & open_
+    out: dict = {}
+    for axis, name, offset in ((1, "rows", 0), (0, "cols", frame)):
+        share = packed.sum(axis=axis) / np.maximum(open_.sum(axis=axis), 1)
+        idx = np.flatnonzero(share >= JAM_LINE)
+        extent = [int(idx[0]) + offset, int(idx[-1]) + offset, int(idx.size)] if idx.size else None
+        out[f"jam_{name}"] = extent
+    return out
 
 
 def draw(path: Path, runs: dict[str, dict], agents: int, planner: str, T: int) -> None:
@@ -153,6 +174,7 @@ def main(argv: list[str] | None = None) -> int:
             runs[path.stem] = r
             row = {"layout": path.stem, "agents": args.agents, "throughput": round(r["throughput"], 3)}
             row.update({k: round(v, 4) for k, v in shares(r["rows"], r["visits"], args.T, args.edge).items()})
+            row.update(jam_extent(r["rows"], r["visits"], args.T))
             print(json.dumps(row), flush=True)
         draw(args.out / f"traffic_{args.agents}.png", runs, args.agents, args.planner, args.T)
     except (NcaQdError, OSError) as exc:
