@@ -69,13 +69,18 @@ PACKED = 0.9
 JAM_LINE = 0.25
 
 
+def _tiles(rows: list[str]) -> np.ndarray:
+    """Map rows -> ``[h, w]`` indices into the warehouse alphabet (``wh.TILES``)."""
+    return np.array([[wh.TILES.index(c) for c in r] for r in rows], dtype=np.int32)
+
+
 def shares(rows: list[str], visits: np.ndarray, T: int, edge: int) -> dict:
     """Where the agent-time goes (shares of all agent-timesteps; the first three sum to 1): the
     workstation columns and ``edge`` storage columns beside them, the corridor rows' cells
     beyond them, the rest of the storage area; then the most occupied 1 % of tiles and the
     tiles occupied over :data:`PACKED` of the horizon (a standing queue or a jam: a tile an
     agent leaves is soon taken again)."""
-    lay = np.array([[wh.TILES.index(c) for c in r] for r in rows], dtype=np.int32)
+    lay = _tiles(rows)
     v = visits.astype(np.float64)
     total = v.sum()
     w, frame = lay.shape[1], wh.FRAME
@@ -101,11 +106,10 @@ def jam_extent(rows: list[str], visits: np.ndarray, T: int) -> dict:
     the horizon), and how many rows and columns are; ``None`` where none is. Two layouts can
     hold the same agent-time on packed tiles in jams of different shape (a band across the
     rows or a block bounded by them)."""
-    frame = wh.FRAME
-    open_ = np.array([[c != "@" for c in r] for r in rows])[:, frame:-frame]
-    packed = (visits[:, frame:-frame] > PACKED * T) & open_
+    open_ = wh.storage(_tiles(rows)) != wh.SHELF
+    packed = (wh.storage(visits) > PACKED * T) & open_
     out: dict = {}
-    for axis, name, offset in ((1, "rows", 0), (0, "cols", frame)):
+    for axis, name, offset in ((1, "rows", 0), (0, "cols", wh.FRAME)):
         share = packed.sum(axis=axis) / np.maximum(open_.sum(axis=axis), 1)
         idx = np.flatnonzero(share >= JAM_LINE)
         extent = [int(idx[0]) + offset, int(idx[-1]) + offset, int(idx.size)] if idx.size else None
