@@ -15,6 +15,7 @@ from nca_qd.agent.levels import Levels, solve
 from nca_qd.agent.network import AgentNet
 from nca_qd.agent.ppo import Trainer
 from nca_qd.domains.maze import run_agent, solve_start_goal
+from nca_qd.errors import NcaQdError
 from nca_qd.sim import maze_agent as ma
 
 
@@ -362,6 +363,36 @@ def test_shipped_agent_solves_open_room_and_is_deterministic():
     np.testing.assert_array_equal(res.lengths, again.lengths)
     other = run_agent(OPEN_ROOM, start, goal, jax.random.PRNGKey(1), kind="learned", episodes=50)
     assert not np.array_equal(res.lengths, other.lengths)  # sampled actions
+
+
+def test_learned_agent_from_other_weights(tmp_path):
+    """``weights=<dir>`` runs the learned kind with those parameters: a copy of the shipped ones
+    plays exactly as the shipped agent, all-zero ones (a uniform random policy) wander longer;
+    weights for a rule-based kind or a directory without weights: one clear error."""
+    from nca_qd.agent import load_agent, save_agent
+    from nca_qd.domains import make_domain
+
+    net, params, meta = load_agent()
+    save_agent(params, meta, tmp_path / "copy")
+    save_agent(jax.tree.map(jnp.zeros_like, params), meta, tmp_path / "zero")
+    start, goal, _ = solve_start_goal(OPEN_ROOM)
+    key = jax.random.PRNGKey(0)
+    shipped = run_agent(OPEN_ROOM, start, goal, key, kind="learned", episodes=50)
+    copy = run_agent(OPEN_ROOM, start, goal, key, kind="learned", episodes=50, weights=str(tmp_path / "copy"))
+    np.testing.assert_array_equal(shipped.lengths, copy.lengths)
+    zero = run_agent(OPEN_ROOM, start, goal, key, kind="learned", episodes=50, weights=str(tmp_path / "zero"))
+    assert zero.lengths.mean() > 2 * shipped.lengths.mean()
+    with pytest.raises(NcaQdError, match="learned kind only"):
+        ma.get_policy("wall_follower", str(tmp_path / "copy"))
+    cfg = {
+        "name": "maze",
+        "size": {"train": [16, 16], "eval": [64, 64]},
+        "nca_iters": {"train": 50, "eval": 200},
+        "measures": {"names": ["n_walls", "path_length"], "ranges": [[0, 256], [0, 648]], "cells": [8, 8]},
+        "agent": {"kind": "learned", "weights": str(tmp_path / "nothing")},
+    }
+    with pytest.raises(NcaQdError, match="nothing"):
+        make_domain(cfg)
 
 
 # --------------------------------------------------------------------------- entry points

@@ -75,17 +75,19 @@ def save_agent(params: Any, meta: dict[str, Any], directory: str | Path | None =
     atomic_write_text(d / META_FILE, json.dumps(meta, indent=2, sort_keys=True) + "\n")
     for name in (WEIGHTS_FILE, META_FILE):
         (d / name).chmod(0o644)  # package data: readable by everyone (mkstemp makes 0600)
-    _shipped.cache_clear()
+    _loaded.cache_clear()
     return d
 
 
-@lru_cache(maxsize=1)
-def _shipped() -> tuple[AgentNet, Any]:
-    net, params, _ = load_agent()
+@lru_cache(maxsize=4)
+def _loaded(directory: str | None) -> tuple[AgentNet, Any]:
+    net, params, _ = load_agent(directory)
     return net, params
 
 
-def shipped_policy() -> ma.Policy:
-    """The ``learned`` kind: the shipped network, sampled actions, LSTM carry as memory."""
-    net, params = _shipped()
+def shipped_policy(weights: str | Path | None = None) -> ma.Policy:
+    """The ``learned`` kind: the shipped network (or the one stored in ``weights``, a directory
+    holding ``maze_agent.msgpack`` and ``maze_agent.json`` as ``experiments.train_agent
+    ship_dir=...`` writes them), sampled actions, LSTM carry as memory."""
+    net, params = _loaded(None if weights is None else str(Path(weights)))
     return learned_policy(net, params)

@@ -77,6 +77,12 @@ def case_horizon(shape: tuple[int, int], cfg: Mapping[str, Any]) -> int:
     return min(horizon, int(cap)) if cap else horizon
 
 
+def agent_weights(cfg: Mapping[str, Any]) -> str | None:
+    """``agent_weights`` of the configuration: a directory of learned parameters, or None."""
+    w = cfg.get("agent_weights")
+    return None if w in (None, "") else str(w)
+
+
 def single_case(
     case: str, layout: np.ndarray, cfg: Mapping[str, Any], key: jax.Array, out: Path | None
 ) -> dict[str, Any]:
@@ -90,6 +96,7 @@ def single_case(
         "success_rate": 0.0,
         "stderr": 0.0,
         "agent": str(cfg["agent"]),
+        **({"agent_weights": agent_weights(cfg)} if agent_weights(cfg) else {}),
         "size": size_name(layout),
         "walls": int((layout[1:-1, 1:-1] == ma.WALL).sum()),
         "path_length": length,
@@ -108,6 +115,7 @@ def single_case(
         episodes=episodes,
         horizon=horizon,
         record_path=out is not None and cfg.get("pictures", True),
+        weights=agent_weights(cfg),
     )
     p = float(np.mean(run.reached))
     res.update(
@@ -249,6 +257,7 @@ def baseline_case(
         "success_rate": 0.0,
         "stderr": 0.0,
         "agent": str(cfg["agent"]),
+        **({"agent_weights": agent_weights(cfg)} if agent_weights(cfg) else {}),
         "size": size_name(reference),
         "mazes": len(mazes),
         "episodes_per_maze": episodes,
@@ -265,10 +274,13 @@ def baseline_case(
         res["note"] = "no baseline maze found"
         return res
     horizon = case_horizon(reference.shape, cfg)
+    weights = agent_weights(cfg)
     keys = jax.random.split(key, len(mazes))
     # One maze at a time through run_agent (same compiled rollout as the single-maze cases).
     runs = [
-        run_agent(lay, s, g, keys[i], kind=str(cfg["agent"]), episodes=episodes, horizon=horizon)
+        run_agent(
+            lay, s, g, keys[i], kind=str(cfg["agent"]), episodes=episodes, horizon=horizon, weights=weights
+        )
         for i, (lay, s, g, _) in enumerate(mazes)
     ]
     per_maze = np.array([r.reached.mean() for r in runs])
@@ -292,6 +304,7 @@ def baseline_case(
                 episodes=episodes,
                 horizon=horizon,
                 record_path=True,
+                weights=weights,
             )
             draw_path(
                 out / f"{case}_{i}.png",
@@ -366,7 +379,7 @@ def own_nca_layouts(run_dir: str | Path, elite: int | None) -> tuple[dict[str, n
 
 def run_transfer(cfg: Mapping[str, Any], out: Path | None, emit=None) -> list[dict[str, Any]]:
     """Every case in order; ``emit(result)`` is called as each one finishes."""
-    ma.get_policy(str(cfg["agent"]))  # an unknown kind fails before any work
+    ma.get_policy(str(cfg["agent"]), agent_weights(cfg))  # an unknown kind fails before any work
     results: list[dict[str, Any]] = []
     key = jax.random.PRNGKey(int(cfg["seed"]))
     rng = np.random.default_rng(int(cfg["seed"]))

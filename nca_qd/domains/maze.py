@@ -16,7 +16,8 @@ the alphabet ``" X"`` (0 = empty, 1 = wall); :meth:`MazeDomain.assemble` surroun
   (a miss counts the horizon = ``horizon_factor`` x tiles of the bordered layout; 648 at 18x18;
   an unsolvable maze is not simulated and counts the horizon). The agent
   (``cfg["agent"]["kind"]``, default ``learned``: :mod:`nca_qd.agent`) is one of
-  :data:`nca_qd.sim.maze_agent.POLICIES`.
+  :data:`nca_qd.sim.maze_agent.POLICIES`; ``cfg["agent"]["weights"]`` (a directory) gives a
+  learned agent other parameters than the shipped ones (the measure depends on the agent).
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ EMPTY, WALL = maze_agent.EMPTY, maze_agent.WALL
 MEASURES = ("n_walls", "entropy", "path_length")
 # The learned agent (nca_qd/agent: the paper's ACCEL-trained LSTM policy, shipped weights) is
 # the default; the rule-based kinds stay available through cfg["agent"]["kind"].
-DEFAULT_AGENT = {"kind": "learned", "episodes": 50, "horizon_factor": 2}
+DEFAULT_AGENT = {"kind": "learned", "episodes": 50, "horizon_factor": 2, "weights": None}
 
 
 # --------------------------------------------------------------------------- start and goal
@@ -208,8 +209,8 @@ class AgentRun(NamedTuple):
 
 
 @cache
-def _run_fn(kind: str, episodes: int, horizon: int, record: bool):
-    policy = maze_agent.get_policy(kind)
+def _run_fn(kind: str, episodes: int, horizon: int, record: bool, weights: str | None = None):
+    policy = maze_agent.get_policy(kind, weights)
     if record:
         return jax.jit(partial(maze_agent.record_episode, policy, episodes=episodes, horizon=horizon))
     return jax.jit(partial(maze_agent.rollout, policy, episodes=episodes, horizon=horizon))
@@ -233,22 +234,24 @@ def run_agent(
     episodes: int = 50,
     horizon: int | None = None,
     record_path: bool = False,
+    weights: str | None = None,
 ) -> AgentRun:
     """Run ``episodes`` episodes of agent ``kind`` on one bordered layout ``[H, W]`` (any size).
 
     Same key derivation as the evaluator: maze ``i`` of an evaluator call with ``key`` equals
     ``run_agent(..., key=maze_key(key, i))``. ``horizon`` defaults to 2 x tiles.
     With ``record_path`` also returns episode 0's positions and directions (until the goal or
-    the horizon).
+    the horizon). ``weights``: a directory of learned parameters (``kind="learned"``; None: the
+    shipped agent).
     """
     layout = jnp.asarray(layout, jnp.int32)
     if horizon is None:
         horizon = horizon_for(layout.shape)
     start, goal = jnp.asarray(start, jnp.int32), jnp.asarray(goal, jnp.int32)
-    res = _run_fn(kind, int(episodes), int(horizon), False)(layout, start, goal, key)
+    res = _run_fn(kind, int(episodes), int(horizon), False, weights)(layout, start, goal, key)
     path = dirs = None
     if record_path:
-        pos, d, length = _run_fn(kind, int(episodes), int(horizon), True)(layout, start, goal, key)
+        pos, d, length = _run_fn(kind, int(episodes), int(horizon), True, weights)(layout, start, goal, key)
         n = int(length) + 1
         path, dirs = np.asarray(pos)[:n], np.asarray(d)[:n]
     return AgentRun(np.asarray(res.lengths), np.asarray(res.reached), path, dirs)
@@ -281,7 +284,9 @@ class MazeDomain(Domain):
             raise NcaQdError(f"maze: unknown measure(s) {bad} (known: {', '.join(MEASURES)})")
         agent = {**DEFAULT_AGENT, **dict(cfg.get("agent") or {})}
         self.agent_kind = str(agent["kind"])
-        maze_agent.get_policy(self.agent_kind)  # fail early on an unknown kind
+        self.agent_weights = None if agent["weights"] in (None, "") else str(agent["weights"])
+        # fail early on an unknown kind or unreadable weights
+        maze_agent.get_policy(self.agent_kind, self.agent_weights)
         self.episodes = int(agent["episodes"])
         self.horizon_factor = int(agent["horizon_factor"])
 
@@ -305,7 +310,7 @@ class MazeDomain(Domain):
         """The jitted scorer. With ``algo.ancillary`` set in ``run_cfg`` (DSAGE) it also returns
         ``extras["ancillary"] [b, h, w]``: the agent's visits per interior tile, averaged over
         episodes (DSAGE's agent occupancy)."""
-        policy = maze_agent.get_policy(self.agent_kind)
+        policy = maze_agent.get_policy(self.agent_kind, self.agent_weights)
         names = self.measure_names
         episodes, factor, k = self.episodes, self.horizon_factor, self.n_tiles
         ancillary = wants_ancillary(run_cfg)

@@ -285,16 +285,23 @@ def register_policy(kind: str, factory: Callable[[], Policy] | str) -> None:
     POLICIES[kind] = factory
 
 
-def get_policy(kind: str) -> Policy:
+# kinds whose factory takes ``weights`` (a directory of trained parameters; None: the shipped ones)
+WEIGHTED_KINDS = {"learned"}
+
+
+def get_policy(kind: str, weights: str | None = None) -> Policy:
+    """The policy of agent ``kind``; ``weights`` picks the parameters of a learned kind."""
     if kind not in POLICIES:
         raise NcaQdError(f"unknown maze agent kind {kind!r} (known: {', '.join(sorted(POLICIES))})")
+    if weights is not None and kind not in WEIGHTED_KINDS:
+        raise NcaQdError(f"agent weights apply to the learned kind only, not to {kind!r}")
     factory = POLICIES[kind]
     if isinstance(factory, str):
         import importlib
 
         module, name = factory.split(":")
         factory = getattr(importlib.import_module(module), name)
-    return factory()
+    return factory() if weights is None else factory(weights=weights)
 
 
 # --------------------------------------------------------------------------- rollouts
