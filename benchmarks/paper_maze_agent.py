@@ -20,11 +20,14 @@ minigrid's) and evaluates it the way the paper's ``RLAgent.eval_and_track`` does
 * the direction input as the paper's ``one_hot`` builds it: its batch index sets, in every row,
   the columns of all 10 environments' directions, so each agent sees their union.
 
-It first plays the paper's NCA maze (``maze/paper_nca_16x16.json``, 100 episodes) with both
-agents, then a seeded sample of the run's elites per band of the first measure (``--per-band``,
-default 30; the sample's layouts go to ``paper_agent_sample.npz`` in the run directory, so the
-comparison can be re-run where the archive is not shipped), and prints, per band, both agents'
-median path length and shares at 200 and 400 steps or more; per-maze figures go to
+The paper's search measures with 10 environments (``RLAgentConfig.n_envs``), its transfer runs
+(``run_single_rl_agent``) with 1, where the direction input is the agent's own. The tool first
+plays the paper's NCA maze (``--paper-maze 16``: 18 x 18 with its border; ``64``: 66 x 66; 100
+episodes, horizon 2 x tiles) with the paper's agent both ways and with ours, then a seeded
+sample of the run's elites per band of the first measure (``--per-band``, default 30; the
+sample's layouts go to ``paper_agent_sample.npz`` in the run directory, so the comparison can be
+re-run where the archive is not shipped) with the search's protocol, and prints, per band, both
+agents' median path length and shares at 200 and 400 steps or more; per-maze figures go to
 ``paper_agent_paths.csv`` beside it. Bad input: one line on stderr, exit status 2.
 """
 
@@ -132,19 +135,22 @@ def forward(p, view, dir_input, h, c):
     return logits, h, c
 
 
-def evaluate_maze(p, layout, start, goal, key, n_episodes: int = 50, horizon: int = 648):
+def evaluate_maze(
+    p, layout, start, goal, key, n_episodes: int = 50, horizon: int = 648, n_envs: int = N_ENVS
+):
     """``(lengths [n_episodes], reached [n_episodes])`` of the first episodes to end among
-    ``N_ENVS`` environments playing one bordered maze back to back (module docstring)."""
+    ``n_envs`` environments playing one bordered maze back to back (module docstring; the
+    paper's search used 10, its transfer runs 1, where the direction input is the agent's own)."""
     env = ma.make_env(layout, goal)
     start = jnp.asarray(start, jnp.int32)
-    cap = n_episodes * horizon // N_ENVS + horizon + 1
+    cap = n_episodes * horizon // n_envs + horizon + 1
     k0, key = jax.random.split(key)
     s0 = {
-        "pos": jnp.tile(start, (N_ENVS, 1)),
-        "dir": jax.random.randint(k0, (N_ENVS,), 0, 4, jnp.int32),
-        "h": jnp.zeros((N_ENVS, HIDDEN)),
-        "c": jnp.zeros((N_ENVS, HIDDEN)),
-        "t": jnp.zeros(N_ENVS, jnp.int32),
+        "pos": jnp.tile(start, (n_envs, 1)),
+        "dir": jax.random.randint(k0, (n_envs,), 0, 4, jnp.int32),
+        "h": jnp.zeros((n_envs, HIDDEN)),
+        "c": jnp.zeros((n_envs, HIDDEN)),
+        "t": jnp.zeros(n_envs, jnp.int32),
         "lengths": jnp.zeros(n_episodes, jnp.int32),
         "reached": jnp.zeros(n_episodes, bool),
         "n": jnp.int32(0),
@@ -165,7 +171,7 @@ def evaluate_maze(p, layout, start, goal, key, n_episodes: int = 50, horizon: in
         reached = jnp.all(moved.pos == env.goal, axis=-1)
         done = reached | (t >= horizon)
         slot = jnp.where(done, s["n"] + jnp.cumsum(done) - 1, n_episodes)  # env order within a step
-        fresh = jax.random.randint(k_dir, (N_ENVS,), 0, 4, jnp.int32)
+        fresh = jax.random.randint(k_dir, (n_envs,), 0, 4, jnp.int32)
         return {
             "pos": jnp.where(done[:, None], start, moved.pos),
             "dir": jnp.where(done, fresh, moved.dir),
@@ -183,10 +189,12 @@ def evaluate_maze(p, layout, start, goal, key, n_episodes: int = 50, horizon: in
     return s["lengths"], s["reached"]
 
 
-@partial(jax.jit, static_argnames=("n_episodes", "horizon"))
-def evaluate_batch(p, layouts, starts, goals, keys, n_episodes: int = 50, horizon: int = 648):
+@partial(jax.jit, static_argnames=("n_episodes", "horizon", "n_envs"))
+def evaluate_batch(
+    p, layouts, starts, goals, keys, n_episodes: int = 50, horizon: int = 648, n_envs: int = N_ENVS
+):
     """:func:`evaluate_maze` over a batch of bordered mazes of one shape."""
-    return jax.vmap(lambda lay, s, g, k: evaluate_maze(p, lay, s, g, k, n_episodes, horizon))(
+    return jax.vmap(lambda lay, s, g, k: evaluate_maze(p, lay, s, g, k, n_episodes, horizon, n_envs))(
         layouts, starts, goals, keys
     )
 
@@ -229,18 +237,33 @@ def make_sample(run_dir: Path, per_band: int, seed: int = 0) -> dict[str, np.nda
     }
 
 
-def paper_maze(p, key) -> tuple[dict, dict]:
-    """Both agents on the paper's NCA maze (18 x 18 with its border), 100 episodes each."""
+def paper_maze(p, key, interior: int = 16) -> dict[str, dict]:
+    """The paper's NCA maze (``interior`` 16 or 64, with its border), 100 episodes: the paper's
+    agent as its transfer runs play it (1 environment: its own direction) and as its search
+    does (10 environments: the union of their directions), and our shipped agent."""
     from nca_qd.domains.maze import run_agent, solve_start_goal
     from nca_qd.io import load_map, reference_maps_dir
 
-    rows = load_map(reference_maps_dir() / "maze" / "paper_nca_16x16.json").rows
+    rows = load_map(reference_maps_dir() / "maze" / f"paper_nca_{interior}x{interior}.json").rows
     layout = np.pad(np.array([[ch == "X" for ch in r] for r in rows], np.int32), 1, constant_values=ma.WALL)
     start, goal, _ = solve_start_goal(layout)
-    lengths, reached = evaluate_batch(p, layout[None], start[None], goal[None], key[None], n_episodes=100)
-    ours = run_agent(layout, start, goal, key, kind="learned", episodes=100)
-    paper = {"success": float(np.mean(reached)), "mean_length": float(np.mean(lengths))}
-    return paper, {"success": float(ours.reached.mean()), "mean_length": float(ours.lengths.mean())}
+    horizon = 2 * layout.size
+    out = {}
+    for name, n_envs in (("paper's agent, 1 environment", 1), ("paper's agent, 10 environments", N_ENVS)):
+        lengths, reached = evaluate_batch(
+            p,
+            layout[None],
+            start[None],
+            goal[None],
+            key[None],
+            n_episodes=100,
+            horizon=horizon,
+            n_envs=n_envs,
+        )
+        out[name] = {"success": float(np.mean(reached)), "mean_length": float(np.mean(lengths))}
+    ours = run_agent(layout, start, goal, key, kind="learned", episodes=100, horizon=horizon)
+    out["our agent"] = {"success": float(ours.reached.mean()), "mean_length": float(ours.lengths.mean())}
+    return out
 
 
 def band_lines(m0: np.ndarray, ours: np.ndarray, paper: np.ndarray, success: np.ndarray) -> list[str]:
@@ -270,6 +293,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--run", default="results/maze_qd/cma_mae_maze_entropy_s0")
     ap.add_argument("--per-band", type=int, default=30)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument(
+        "--paper-maze", type=int, choices=(16, 64), default=16, help="the paper's NCA maze's interior"
+    )
     args = ap.parse_args(argv)
     try:
         p = agent_params(read_state_dict(args.checkpoint))
@@ -288,8 +314,12 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     key = jax.random.PRNGKey(args.seed)
     k_paper, k_sample = jax.random.split(key)
-    paper, ours = paper_maze(p, k_paper)
-    print(f"paper_nca_18x18, 100 episodes: paper's agent {paper}, ours {ours}")
+    size = args.paper_maze + 2
+    for name, res in paper_maze(p, k_paper, args.paper_maze).items():
+        print(
+            f"paper_nca_{size}x{size}, 100 episodes, {name}: success {res['success']:.2f}, "
+            f"mean episode length {res['mean_length']:.0f}"
+        )
     n = len(sample["cell"])
     lengths, reached = evaluate_batch(
         p,
