@@ -7,18 +7,9 @@ The maze archive's path-length measure is the learned agent's mean episode lengt
 decides which cells a search can fill. The paper measured with the ACCEL agent of its public
 repository (``lunjohnzhang/warehouse_env_gen_nca_public``,
 ``env_search/maze/agents/saved_models/accel_seed_1/model_20000.tar``, a PyTorch checkpoint that
-is not shipped here: fetch it and give its path). This tool reads that checkpoint with numpy
-(no PyTorch), runs the network in this repository's maze dynamics (:mod:`nca_qd.sim.maze_agent`,
-minigrid's) and evaluates it the way the paper's ``RLAgent.eval_and_track`` does:
-
-* the network: a 3x3 convolution (16 filters, valid) over the 5x5 view encoded as minigrid does
-  (object type, colour, state; divided by 10), the direction one-hot through a dense layer of 5
-  (no activation), an LSTM of 256, an actor of dense 32 + tanh + 7 logits, actions sampled;
-  actions 3-6 (pickup, drop, toggle, done) change nothing, as in an empty maze;
-* 10 environments in lock step, episodes back to back, the first 50 episodes to end kept (in
-  step, then environment order) — which favours short episodes;
-* the direction input as the paper's ``one_hot`` builds it: its batch index sets, in every row,
-  the columns of all 10 environments' directions, so each agent sees their union.
+is not shipped here: fetch it and give its path). The agent, its checkpoint reader and both
+of the paper's protocols live in :mod:`nca_qd.agent.paper_accel` (the maze kinds
+``paper_accel`` and ``paper_accel_search``); this tool compares it with ours.
 
 The paper's search measures with 10 environments (``RLAgentConfig.n_envs``), its transfer runs
 (``run_single_rl_agent``) with 1, where the direction input is the agent's own. The tool first
@@ -34,169 +25,20 @@ agents' median path length and shares at 200 and 400 steps or more; per-maze fig
 from __future__ import annotations
 
 import argparse
-import collections
 import csv
-import pickle
 import sys
-import zipfile
-from functools import partial
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from nca_qd.agent.paper_accel import N_ENVS, agent_params, play_lockstep_batch, read_state_dict
 from nca_qd.errors import NcaQdError
 from nca_qd.sim import maze_agent as ma
 
-N_ENVS = 10  # the paper's RLAgentConfig.n_envs
-N_ACTIONS = 7  # minigrid's actions; 3..6 act on objects the maze has none of
-HIDDEN = 256
-# minigrid's encoding of our view classes (empty, wall, goal): OBJECT_TO_IDX and COLOR_TO_IDX
-ENC_TYPE = np.array([1.0, 2.0, 8.0], np.float32) / 10
-ENC_COLOR = np.array([0.0, 5.0, 1.0], np.float32) / 10
 SAMPLE_NAME, CSV_NAME = "paper_agent_sample.npz", "paper_agent_paths.csv"
 BANDS = (0.0, 0.1, 0.2, 0.3, 0.45, 0.6, 0.8, 1.0)
-_STORAGE = {"FloatStorage": np.float32, "DoubleStorage": np.float64, "LongStorage": np.int64}
-
-
-def read_state_dict(path: str | Path) -> dict[str, np.ndarray]:
-    """A PyTorch zip checkpoint of float tensors as ``{name: array}``, read without PyTorch."""
-    try:
-        z = zipfile.ZipFile(path)
-    except (OSError, zipfile.BadZipFile) as exc:
-        raise NcaQdError(f"{path}: not a PyTorch zip checkpoint ({exc})") from None
-    prefix = z.namelist()[0].split("/")[0]
-
-    def rebuild(storage, offset, size, stride, *_):
-        n = storage.itemsize
-        return np.lib.stride_tricks.as_strided(
-            storage[offset:], shape=tuple(size), strides=[s * n for s in stride]
-        ).copy()
-
-    class Reader(pickle.Unpickler):
-        def find_class(self, module, name):
-            if (module, name) == ("torch._utils", "_rebuild_tensor_v2"):
-                return rebuild
-            if module == "torch" and name in _STORAGE:
-                return name
-            if (module, name) == ("collections", "OrderedDict"):
-                return collections.OrderedDict  # (a plain dict cannot take its _metadata)
-            raise pickle.UnpicklingError(f"unexpected {module}.{name} in {path}")
-
-        def persistent_load(self, pid):
-            _, storage_type, key, _location, _numel = pid
-            return np.frombuffer(z.read(f"{prefix}/data/{key}"), _STORAGE[storage_type])
-
-    try:
-        state = Reader(z.open(f"{prefix}/data.pkl")).load()
-    except (KeyError, pickle.UnpicklingError, ValueError) as exc:
-        raise NcaQdError(f"{path}: not a state dict of tensors ({exc})") from None
-    return {k: np.asarray(v) for k, v in state.items()}
-
-
-def agent_params(state: dict[str, np.ndarray]) -> dict[str, jax.Array]:
-    """The network's parameters under short names, checked against the expected shapes."""
-    names = {
-        "conv_w": ("image_conv.0.weight", (16, 3, 3, 3)),
-        "conv_b": ("image_conv.0.bias", (16,)),
-        "dir_w": ("scalar_embed.weight", (5, 4)),
-        "dir_b": ("scalar_embed.bias", (5,)),
-        "w_ih": ("rnn.rnn.weight_ih_l0", (4 * HIDDEN, 149)),
-        "w_hh": ("rnn.rnn.weight_hh_l0", (4 * HIDDEN, HIDDEN)),
-        "b_ih": ("rnn.rnn.bias_ih_l0", (4 * HIDDEN,)),
-        "b_hh": ("rnn.rnn.bias_hh_l0", (4 * HIDDEN,)),
-        "actor_w": ("actor.0.0.weight", (32, HIDDEN)),
-        "actor_b": ("actor.0.0.bias", (32,)),
-        "logits_w": ("actor.1.linear.weight", (N_ACTIONS, 32)),
-        "logits_b": ("actor.1.linear.bias", (N_ACTIONS,)),
-    }
-    out = {}
-    for short, (name, shape) in names.items():
-        if name not in state or tuple(state[name].shape) != shape:
-            got = tuple(state[name].shape) if name in state else "missing"
-            raise NcaQdError(f"checkpoint: {name} should be {shape}, is {got}")
-        out[short] = jnp.asarray(state[name], jnp.float32)
-    return out
-
-
-def forward(p, view, dir_input, h, c):
-    """One agent step: ``view [5, 5]`` (row 0 farthest ahead, column 0 to the left), the
-    direction input ``[4]``, LSTM state -> (logits [7], h, c)."""
-    img = jnp.stack([jnp.asarray(ENC_TYPE)[view].T, jnp.asarray(ENC_COLOR)[view].T, jnp.zeros((5, 5))])
-    patches = jnp.stack([img[:, i : i + 3, j : j + 3] for i in range(3) for j in range(3)])
-    conv = jnp.einsum("ocab,pcab->op", p["conv_w"], patches) + p["conv_b"][:, None]  # [16, 9]
-    x = jnp.concatenate([jax.nn.relu(conv.reshape(-1)), p["dir_w"] @ dir_input + p["dir_b"]])
-    g = p["w_ih"] @ x + p["b_ih"] + p["w_hh"] @ h + p["b_hh"]
-    i, f, gg, o = jnp.split(g, 4)  # PyTorch's gate order
-    c = jax.nn.sigmoid(f) * c + jax.nn.sigmoid(i) * jnp.tanh(gg)
-    h = jax.nn.sigmoid(o) * jnp.tanh(c)
-    logits = p["logits_w"] @ jnp.tanh(p["actor_w"] @ h + p["actor_b"]) + p["logits_b"]
-    return logits, h, c
-
-
-def evaluate_maze(
-    p, layout, start, goal, key, n_episodes: int = 50, horizon: int = 648, n_envs: int = N_ENVS
-):
-    """``(lengths [n_episodes], reached [n_episodes])`` of the first episodes to end among
-    ``n_envs`` environments playing one bordered maze back to back (module docstring; the
-    paper's search used 10, its transfer runs 1, where the direction input is the agent's own)."""
-    env = ma.make_env(layout, goal)
-    start = jnp.asarray(start, jnp.int32)
-    cap = n_episodes * horizon // n_envs + horizon + 1
-    k0, key = jax.random.split(key)
-    s0 = {
-        "pos": jnp.tile(start, (n_envs, 1)),
-        "dir": jax.random.randint(k0, (n_envs,), 0, 4, jnp.int32),
-        "h": jnp.zeros((n_envs, HIDDEN)),
-        "c": jnp.zeros((n_envs, HIDDEN)),
-        "t": jnp.zeros(n_envs, jnp.int32),
-        "lengths": jnp.zeros(n_episodes, jnp.int32),
-        "reached": jnp.zeros(n_episodes, bool),
-        "n": jnp.int32(0),
-        "step": jnp.int32(0),
-        "key": key,
-    }
-
-    def body(s):
-        key, k_act, k_dir = jax.random.split(s["key"], 3)
-        agents = ma.AgentState(s["pos"], s["dir"])
-        views = jax.vmap(lambda a: ma.observe(env, a))(agents)
-        union = jnp.any(jax.nn.one_hot(s["dir"], 4) > 0, axis=0).astype(jnp.float32)
-        logits, h, c = jax.vmap(forward, in_axes=(None, 0, None, 0, 0))(p, views, union, s["h"], s["c"])
-        action = jax.random.categorical(k_act, logits)
-        action = jnp.where(action >= 3, ma.STAY, action).astype(jnp.int32)
-        moved = jax.vmap(lambda a, u: ma.step(env, a, u))(agents, action)
-        t = s["t"] + 1
-        reached = jnp.all(moved.pos == env.goal, axis=-1)
-        done = reached | (t >= horizon)
-        slot = jnp.where(done, s["n"] + jnp.cumsum(done) - 1, n_episodes)  # env order within a step
-        fresh = jax.random.randint(k_dir, (n_envs,), 0, 4, jnp.int32)
-        return {
-            "pos": jnp.where(done[:, None], start, moved.pos),
-            "dir": jnp.where(done, fresh, moved.dir),
-            "h": jnp.where(done[:, None], 0.0, h),
-            "c": jnp.where(done[:, None], 0.0, c),
-            "t": jnp.where(done, 0, t),
-            "lengths": s["lengths"].at[slot].set(t, mode="drop"),
-            "reached": s["reached"].at[slot].set(reached, mode="drop"),
-            "n": s["n"] + jnp.sum(done, dtype=jnp.int32),
-            "step": s["step"] + 1,
-            "key": key,
-        }
-
-    s = jax.lax.while_loop(lambda s: (s["n"] < n_episodes) & (s["step"] < cap), body, s0)
-    return s["lengths"], s["reached"]
-
-
-@partial(jax.jit, static_argnames=("n_episodes", "horizon", "n_envs"))
-def evaluate_batch(
-    p, layouts, starts, goals, keys, n_episodes: int = 50, horizon: int = 648, n_envs: int = N_ENVS
-):
-    """:func:`evaluate_maze` over a batch of bordered mazes of one shape."""
-    return jax.vmap(lambda lay, s, g, k: evaluate_maze(p, lay, s, g, k, n_episodes, horizon, n_envs))(
-        layouts, starts, goals, keys
-    )
 
 
 def make_sample(run_dir: Path, per_band: int, seed: int = 0) -> dict[str, np.ndarray]:
@@ -250,7 +92,7 @@ def paper_maze(p, key, interior: int = 16) -> dict[str, dict]:
     horizon = 2 * layout.size
     out = {}
     for name, n_envs in (("paper's agent, 1 environment", 1), ("paper's agent, 10 environments", N_ENVS)):
-        lengths, reached = evaluate_batch(
+        lengths, reached = play_lockstep_batch(
             p,
             layout[None],
             start[None],
@@ -321,7 +163,7 @@ def main(argv: list[str] | None = None) -> int:
             f"mean episode length {res['mean_length']:.0f}"
         )
     n = len(sample["cell"])
-    lengths, reached = evaluate_batch(
+    lengths, reached = play_lockstep_batch(
         p,
         jnp.asarray(sample["layouts"], jnp.int32),
         jnp.asarray(sample["start"]),

@@ -382,7 +382,7 @@ def test_learned_agent_from_other_weights(tmp_path):
     np.testing.assert_array_equal(shipped.lengths, copy.lengths)
     zero = run_agent(OPEN_ROOM, start, goal, key, kind="learned", episodes=50, weights=str(tmp_path / "zero"))
     assert zero.lengths.mean() > 2 * shipped.lengths.mean()
-    with pytest.raises(NcaQdError, match="learned kind only"):
+    with pytest.raises(NcaQdError, match="only, not to"):
         ma.get_policy("wall_follower", str(tmp_path / "copy"))
     cfg = {
         "name": "maze",

@@ -1,4 +1,5 @@
-"""benchmarks.paper_maze_agent: the checkpoint reader, the network step, the paper's episode protocol."""
+"""The paper's maze agent (nca_qd.agent.paper_accel and benchmarks.paper_maze_agent): the checkpoint
+reader, the network step, the paper's two episode protocols, the maze kinds that use them."""
 
 from __future__ import annotations
 
@@ -14,16 +15,17 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from benchmarks.paper_maze_agent import (
+from benchmarks.paper_maze_agent import main
+from nca_qd.agent.paper_accel import (
     ENC_COLOR,
     ENC_TYPE,
     HIDDEN,
     agent_params,
-    evaluate_maze,
     forward,
-    main,
+    play_lockstep,
     read_state_dict,
 )
+from nca_qd.errors import NcaQdError
 from nca_qd.sim import maze_agent as ma
 
 SHAPES = {
@@ -169,7 +171,7 @@ def test_the_first_episodes_to_end_are_kept():
     layout[1, 1:7] = ma.EMPTY
     start, goal = np.array([1, 1]), np.array([1, 6])
     key = jax.random.PRNGKey(3)
-    lengths, reached = evaluate_maze(p, layout, start, goal, key, n_episodes=100, horizon=30)
+    lengths, reached = play_lockstep(p, layout, start, goal, key, n_episodes=100, horizon=30)
     lengths, reached = np.asarray(lengths), np.asarray(reached)
     assert set(lengths.tolist()) <= {5, 30}
     np.testing.assert_array_equal(reached, lengths == 5)
@@ -181,3 +183,101 @@ def test_bad_checkpoint_is_one_line_and_exit_2(tmp_path, capsys):
     assert main(["--checkpoint", str(tmp_path / "x.tar")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "not a PyTorch zip checkpoint" in err[0]
+
+
+# --------------------------------------------------------------------------- the maze kinds
+
+CORRIDOR = np.ones((3, 8), np.int32)
+CORRIDOR[1, 1:7] = ma.EMPTY
+C_START, C_GOAL = np.array([1, 1]), np.array([1, 6])
+
+
+def compass_checkpoint(path, monkeypatch):
+    """An agent that goes forward when its direction input reads "east" alone and turns right
+    otherwise: the direction embedding's unit 0 is 2 x east - 3 x (any other), passed through
+    an LSTM unit with its input and output gates open and its forget gate shut, then to the
+    forward (+) and right (-) logits. Played with its own direction it faces east within three
+    turns and walks the corridor (5-8 steps); fed the union of ten agents' directions it keeps
+    turning."""
+    state = {k: np.zeros(s, np.float32) for k, s in SHAPES.items()}
+    state["scalar_embed.weight"][0] = [2.0, -3.0, -3.0, -3.0]  # east, south, west, north
+    b = state["rnn.rnn.bias_ih_l0"]
+    b[:HIDDEN], b[HIDDEN : 2 * HIDDEN], b[3 * HIDDEN :] = 20.0, -20.0, 20.0  # gates i, f, o
+    state["rnn.rnn.weight_ih_l0"][2 * HIDDEN, 144] = 1.0  # cell input of unit 0 <- embedding 0
+    state["actor.0.0.weight"][0, 0] = 10.0
+    state["actor.1.linear.weight"][2, 0], state["actor.1.linear.weight"][1, 0] = 20.0, -20.0
+    tensors = {k: (v.reshape(-1), v.shape, _strides(v.shape)) for k, v in state.items()}
+    write_checkpoint(path, tensors, monkeypatch)
+    return agent_params(state)
+
+
+def _strides(shape):
+    return tuple(int(np.prod(shape[i + 1 :])) for i in range(len(shape)))
+
+
+def test_transfer_kind_plays_each_episode_with_its_own_direction(tmp_path, monkeypatch):
+    compass_checkpoint(tmp_path / "m.tar", monkeypatch)
+    policy = ma.get_policy("paper_accel", str(tmp_path / "m.tar"))
+    res = ma.rollout(policy, jnp.asarray(CORRIDOR), C_START, C_GOAL, jax.random.PRNGKey(0), 40, 30)
+    lengths = np.asarray(res.lengths)
+    assert np.asarray(res.reached).all() and set(lengths.tolist()) <= {5, 6, 7, 8}
+    assert len(set(lengths.tolist())) > 1  # random first directions
+
+
+def test_search_kind_plays_the_papers_lockstep_protocol(tmp_path, monkeypatch):
+    """``paper_accel_search`` through the domain's rollout is exactly the lock-step protocol,
+    maze by maze with the evaluator's keys: the union input keeps the compass agent turning
+    (where its own direction got it home every time); a maze without a path plays nothing."""
+    from nca_qd.domains.maze import maze_key
+
+    p = compass_checkpoint(tmp_path / "m.tar", monkeypatch)
+    policy = ma.get_policy("paper_accel_search", str(tmp_path / "m.tar"))
+    layouts = jnp.asarray(np.stack([CORRIDOR, CORRIDOR]))
+    starts, goals = jnp.asarray(np.stack([C_START, C_START])), jnp.asarray(np.stack([C_GOAL, C_GOAL]))
+    key = jax.random.PRNGKey(7)
+    keys = jax.vmap(lambda i: maze_key(key, i))(jnp.arange(2))
+    active = jnp.array([True, False])
+    res = ma.rollout_batch(policy, layouts, starts, goals, keys, 20, 30, active)
+    want, want_reached = play_lockstep(p, layouts[0], starts[0], goals[0], keys[0], 20, 30)
+    np.testing.assert_array_equal(np.asarray(res.lengths[0]), np.asarray(want))
+    np.testing.assert_array_equal(np.asarray(res.reached[0]), np.asarray(want_reached))
+    assert np.asarray(res.reached[0]).mean() < 0.2
+    assert (np.asarray(res.lengths[1]) == 30).all() and not np.asarray(res.reached[1]).any()
+    with pytest.raises(NcaQdError, match="cannot count visits"):
+        ma.rollout_batch(policy, layouts, starts, goals, keys, 20, 30, active, count_visits=True)
+
+
+def test_maze_domain_scores_with_the_papers_agent(tmp_path, monkeypatch):
+    """``domain.agent.kind=paper_accel_search`` with the checkpoint as weights: the evaluator's
+    episode lengths are the lock-step protocol's for each maze's key; no weights, or a file that
+    is no checkpoint: one clear error."""
+    from nca_qd.domains import make_domain
+    from nca_qd.domains.maze import longest_shortest_path, maze_key
+
+    p = compass_checkpoint(tmp_path / "m.tar", monkeypatch)
+    cfg = {
+        "name": "maze",
+        "size": {"train": [6, 6], "eval": [8, 8]},
+        "nca_iters": {"train": 5, "eval": 5},
+        "measures": {"names": ["n_walls", "path_length"], "ranges": [[0, 36], [0, 128]], "cells": [4, 4]},
+        "agent": {"kind": "paper_accel_search", "weights": str(tmp_path / "m.tar"), "episodes": 10},
+    }
+    domain = make_domain(cfg)
+    regions = np.zeros((2, 6, 6), np.int32)
+    regions[0, 1:, 2] = ma.WALL
+    regions[1, 2, :] = ma.WALL  # cut in two: the longest path stays within one half
+    key = jax.random.PRNGKey(3)
+    batch = domain.make_evaluator()(regions, key)
+    layouts = np.pad(regions, ((0, 0), (1, 1), (1, 1)), constant_values=ma.WALL)
+    _, start, goal = longest_shortest_path(jnp.asarray(regions == ma.EMPTY))
+    for i in range(2):
+        want, _ = play_lockstep(p, layouts[i], start[i] + 1, goal[i] + 1, maze_key(key, i), 10, 128)
+        np.testing.assert_array_equal(np.asarray(batch.extras["episode_lengths"][i]), np.asarray(want))
+    lengths = np.asarray(batch.extras["episode_lengths"])
+    np.testing.assert_allclose(np.asarray(batch.measures[:, 1]), lengths.mean(1))
+    for agent, match in (
+        ({"kind": "paper_accel"}, "needs the paper's checkpoint"),
+        ({"kind": "paper_accel_search", "weights": str(tmp_path / "none.tar")}, "not a PyTorch zip"),
+    ):
+        with pytest.raises(NcaQdError, match=match):
+            make_domain({**cfg, "agent": agent})

@@ -30,10 +30,11 @@ Policies are pluggable: a :class:`Policy` is three pure functions,
 
 The registry :data:`POLICIES` names every kind a config may choose (``domain.agent.kind``):
 two rule-based policies, ``shortest_path`` and ``wall_follower`` (documented at their
-constructors), and ``learned``, the trained agent of :mod:`nca_qd.agent`, named by module path
-and imported only when chosen (so this module depends on no agent package; the agent package
-depends on this one). :func:`register_policy` adds more at run time. :func:`rollout` runs ``E``
-episodes of one maze (vmapped over episodes, one
+constructors), ``learned``, the trained agent of :mod:`nca_qd.agent`, and ``paper_accel`` /
+``paper_accel_search``, the paper's agent from its checkpoint (:mod:`nca_qd.agent.paper_accel`),
+named by module path and imported only when chosen (so this module depends on no agent package;
+the agent package depends on this one). :func:`register_policy` adds more at run time.
+:func:`rollout` runs ``E`` episodes of one maze (vmapped over episodes, one
 ``lax.while_loop`` over time that stops when every episode is done); vmap it over mazes.
 """
 
@@ -87,12 +88,18 @@ class Policy(NamedTuple):
     ``deterministic``: ``act`` ignores its key, so (state, memory) fully determines the future;
     :func:`rollout_batch` then stops an episode as soon as it revisits a (state, memory) it was
     in before (a cycle that never reaches the goal: it would count the horizon anyway).
+
+    ``rollout``: for a policy whose episodes are not independent (the paper's agent as its
+    search played it: environments in lock step that share an input), its own
+    ``(layouts, starts, goals, keys, episodes, horizon, active) -> Rollout`` replaces
+    :func:`rollout_batch`'s loop; ``act`` then only serves single recorded episodes.
     """
 
     prepare: Callable[[jax.Array, jax.Array], Any]
     init: Callable[[jax.Array], Any]
     act: Callable[[MazeEnv, AgentState, Any, jax.Array], tuple[jax.Array, Any]]
     deterministic: bool = False
+    rollout: Callable[..., Any] | None = None
 
 
 # --------------------------------------------------------------------------- dynamics
@@ -276,6 +283,9 @@ POLICIES: dict[str, Callable[[], Policy] | str] = {
     "shortest_path": shortest_path_policy,
     "wall_follower": wall_follower_policy,
     "learned": "nca_qd.agent.shipped:shipped_policy",
+    # the paper's agent from its public checkpoint (weights=<its model_20000.tar>; not shipped)
+    "paper_accel": "nca_qd.agent.paper_accel:transfer_policy",
+    "paper_accel_search": "nca_qd.agent.paper_accel:search_policy",
 }
 
 
@@ -285,8 +295,9 @@ def register_policy(kind: str, factory: Callable[[], Policy] | str) -> None:
     POLICIES[kind] = factory
 
 
-# kinds whose factory takes ``weights`` (a directory of trained parameters; None: the shipped ones)
-WEIGHTED_KINDS = {"learned"}
+# kinds whose factory takes ``weights`` (learned: a directory of trained parameters, None: the
+# shipped ones; paper_accel*: the paper's checkpoint file, required)
+WEIGHTED_KINDS = {"learned", "paper_accel", "paper_accel_search"}
 
 
 def get_policy(kind: str, weights: str | None = None) -> Policy:
@@ -294,7 +305,9 @@ def get_policy(kind: str, weights: str | None = None) -> Policy:
     if kind not in POLICIES:
         raise NcaQdError(f"unknown maze agent kind {kind!r} (known: {', '.join(sorted(POLICIES))})")
     if weights is not None and kind not in WEIGHTED_KINDS:
-        raise NcaQdError(f"agent weights apply to the learned kind only, not to {kind!r}")
+        raise NcaQdError(
+            f"agent weights apply to the kinds {', '.join(sorted(WEIGHTED_KINDS))} only, not to {kind!r}"
+        )
     factory = POLICIES[kind]
     if isinstance(factory, str):
         import importlib
@@ -391,6 +404,10 @@ def rollout_batch(
     """
     b = layouts.shape[0]
     active = jnp.ones((b,), bool) if active is None else jnp.asarray(active, bool)
+    if policy.rollout is not None:
+        if count_visits:
+            raise NcaQdError("this maze agent plays coupled episodes: it cannot count visits (DSAGE)")
+        return policy.rollout(layouts, starts, goals, keys, episodes, horizon, active)
     envs = jax.vmap(make_env)(layouts, goals)
     envs = envs._replace(aux=jax.vmap(policy.prepare)(envs.layout, envs.goal))
     ep_keys = jax.vmap(lambda k: jax.random.split(k, episodes))(keys)  # [B, E]
