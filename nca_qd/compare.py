@@ -65,14 +65,21 @@ def read_run(run_dir: str | Path) -> RunCurve:
 
 def algorithm_label(cfg) -> str:
     """The algorithm and, in a domain whose objective has the repair term ``f + α·Δ``, its α:
-    arms that differ in α are different arms (the paper's table 2 compares α = 0, 1, 5)."""
+    arms that differ in α are different arms (the paper's table 2 compares α = 0, 1, 5). A maze
+    run measured by another agent than the shipped one (``domain.agent``: another kind or other
+    weights) is another arm too: its path-length measure is that agent's."""
     from omegaconf import OmegaConf
 
     alpha = OmegaConf.select(cfg, "alpha", default=None)
     if alpha is None:
         alpha = OmegaConf.select(cfg, "domain.alpha", default=None)
     name = str(cfg.algo.name)
-    return name if alpha is None else f"{name} α={float(alpha):g}"
+    label = name if alpha is None else f"{name} α={float(alpha):g}"
+    kind = OmegaConf.select(cfg, "domain.agent.kind", default=None)
+    weights = OmegaConf.select(cfg, "domain.agent.weights", default=None)
+    if kind is not None and (kind != "learned" or weights not in (None, "")):
+        label += f", agent {kind}" + ("" if weights in (None, "") else f" ({Path(str(weights)).name})")
+    return label
 
 
 def find_runs(paths: Iterable[str | Path]) -> list[Path]:

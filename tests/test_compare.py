@@ -96,6 +96,30 @@ def test_arms_that_differ_in_alpha_are_not_pooled(tmp_path):
     assert "20,366.07" not in rows[1]
 
 
+def test_maze_runs_measured_by_another_agent_are_not_pooled(tmp_path):
+    """A maze run measured by the paper's agent (or other learned weights) is its own arm, with
+    no paper row: its path-length measure is another agent's."""
+
+    def run(path, seed, agent, qd):
+        _fake_run(path, "cma_mae", seed, [(10050, qd, 0.1)], measures=("entropy", "path_length"))
+        with (path / "config.yaml").open("a") as fh:
+            fh.write(agent)
+
+    run(tmp_path / "ours", 0, "  agent:\n    kind: learned\n    weights: null\n", 2356)
+    paper = "  agent:\n    kind: paper_accel_search\n    weights: /x/model_20000.tar\n"
+    run(tmp_path / "theirs", 0, paper, 3000)
+    run(tmp_path / "clean", 0, "  agent:\n    kind: learned\n    weights: runs/clean\n", 2000)
+    table, _ = compare([tmp_path], tmp_path / "out")
+    rows = [line for line in table.splitlines() if line.startswith("| maze")]
+    assert [r.split(" | ")[1] for r in rows] == [
+        "cma_mae, agent paper_accel_search (model_20000.tar)",
+        "cma_mae",
+        "cma_mae, agent learned (clean)",
+    ]
+    assert all(" 1 (0) " in r for r in rows)
+    assert "12,468.20" in rows[1] and "12,468.20" not in rows[0] + rows[2]
+
+
 SUMMARY_HEAD = (
     "domain,size,which,n_agents,layout,kind,cell,gen_seconds,repair_status,repair_seconds,similarity,hamming,"
     "simulator,runs,completed,timed_out,errors,success_rate,throughput_success_mean,throughput_success_se,"
