@@ -71,3 +71,28 @@ def test_emitters_over_lax_map_do_not_freeze():
         pytest.fail("the jitted emitter ask/tell hung (eigh/cholesky hazard)")
     assert out.returncode == 0, out.stderr[-2000:]
     assert "ok 6" in out.stdout
+
+
+def test_host_linear_algebra_gives_the_same_bits_whatever_the_blas_threads():
+    """The CMA-ES eigendecomposition and the screen's free-flow products run on one BLAS thread
+    whatever the process allows: OpenBLAS's eigenvectors change in their last bits with the
+    thread count, and a search fed by them followed the machine's cores (a maze search and its
+    twin pinned to one core parted at iteration 57). Outside the helper the process allows two
+    threads; inside, the result is the one-thread result, bit for bit."""
+    from threadpoolctl import threadpool_limits
+
+    from nca_qd.host_blas import one_thread
+    from nca_qd.qd.emitters import _host_eigh
+
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(600, 600)).astype(np.float32)
+    c = a @ a.T / 600
+    with threadpool_limits(1, "blas"):
+        d1, b1 = np.linalg.eigh(c)
+    with threadpool_limits(2, "blas"):
+        d2, b2 = _host_eigh(c)
+        with one_thread():
+            d3, b3 = np.linalg.eigh(c)
+    np.testing.assert_array_equal(d2, d1.astype(np.float32))
+    np.testing.assert_array_equal(b2, b1.astype(np.float32))
+    np.testing.assert_array_equal(b3, b1)

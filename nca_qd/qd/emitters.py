@@ -33,24 +33,16 @@ import numpy as np
 from evosax.algorithms.distribution_based.cma_es import CMA_ES
 from qdax.core.emitters.mutation_operators import isoline_variation
 
+from nca_qd.host_blas import one_thread
 from nca_qd.qd.archive import AddInfo, ThresholdRepertoire
-
-_BLAS = None  # threadpoolctl controller, created on first use
 
 
 def _host_eigh(c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    global _BLAS
-    c = np.asarray(c)
-    if c.shape[0] < 512:
-        # Small matrices: one BLAS thread. Multi-threaded OpenBLAS spin-waits and was 4x slower
-        # (8 ms vs 2 ms at 100x100) whenever the other core was busy, e.g. with XLA.
-        from threadpoolctl import ThreadpoolController
-
-        _BLAS = _BLAS or ThreadpoolController()
-        with _BLAS.limit(limits=1, user_api="blas"):
-            d_sq, b = np.linalg.eigh(c)
-    else:
-        d_sq, b = np.linalg.eigh(c)
+    # One BLAS thread, always: with more, OpenBLAS's eigenvectors change with the thread count
+    # (nca_qd.host_blas), and multi-threaded it also spin-waits (4x slower at 100x100, 8 ms
+    # against 2 ms, whenever the other core was busy, e.g. with XLA).
+    with one_thread():
+        d_sq, b = np.linalg.eigh(np.asarray(c))
     return d_sq.astype(np.float32), b.astype(np.float32)
 
 
@@ -211,18 +203,19 @@ class ESEmitters:
                 ".es.best_fitness": es.best_fitness,
             }.items()
         }
-        C = np.asarray(es.C)
-        arrays, left, full = compact_matrices(C, rank, tolerance)
-        out.update({".es.C" + k: v for k, v in arrays.items()})
-        B, D = np.asarray(es.B, np.float32), np.asarray(es.D, np.float32)
-        scalar = np.ptp(D, axis=1) <= 1e-7 * np.abs(D).mean(axis=1)
-        sampling = np.stack(
-            [
-                np.diag(np.full(self.dim, d_[0] ** 2)) if sc else (b * d_**2) @ b.T
-                for b, d_, sc in zip(B, D, scalar)
-            ]
-        ).astype(np.float32)
-        arrays, s_left, s_full = compact_matrices(sampling, rank, tolerance)
+        with one_thread():  # what a resumed run reads: the same bits on any machine
+            C = np.asarray(es.C)
+            arrays, left, full = compact_matrices(C, rank, tolerance)
+            out.update({".es.C" + k: v for k, v in arrays.items()})
+            B, D = np.asarray(es.B, np.float32), np.asarray(es.D, np.float32)
+            scalar = np.ptp(D, axis=1) <= 1e-7 * np.abs(D).mean(axis=1)
+            sampling = np.stack(
+                [
+                    np.diag(np.full(self.dim, d_[0] ** 2)) if sc else (b * d_**2) @ b.T
+                    for b, d_, sc in zip(B, D, scalar)
+                ]
+            ).astype(np.float32)
+            arrays, s_left, s_full = compact_matrices(sampling, rank, tolerance)
         out.update({".es.S" + k: v for k, v in arrays.items()})
         return out, {
             "covariance_left_out": left,

@@ -27,6 +27,7 @@ from numpy.typing import ArrayLike
 from scipy.sparse import coo_matrix, csr_matrix
 from scipy.sparse.csgraph import shortest_path
 
+from nca_qd.host_blas import one_thread
 from nca_qd.sim.scenario import Scenario
 
 __all__ = [
@@ -80,7 +81,8 @@ def mean_leg_cost(scen: Scenario) -> float:
         dist = dist[:, node[cb.cells]]
         wa = ca.weights / ca.weights.sum()
         wb = cb.weights / cb.weights.sum()
-        total += float(wa @ dist @ wb) + cb.dwell
+        with one_thread():  # the same last bits on any number of cores (nca_qd.host_blas)
+            total += float(wa @ dist @ wb) + cb.dwell
     return total / len(cycle)
 
 
