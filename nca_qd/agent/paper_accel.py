@@ -264,9 +264,9 @@ def search_policy(weights: str | Path | None = None, n_envs: int = N_ENVS) -> ma
     p = _params(weights, "paper_accel_search")
 
     def rollout(layouts, starts, goals, keys, episodes, horizon, active):
-        lengths, reached = jax.vmap(
-            lambda lay, s, g, k, a: play_lockstep(p, lay, s, g, k, episodes, horizon, n_envs, a)
-        )(layouts, starts, goals, keys, active)
+        lengths, reached = play_lockstep_batch(
+            p, layouts, starts, goals, keys, episodes, horizon, n_envs, active
+        )
         return ma.Rollout(lengths, reached)
 
     return _episode_policy(p, rollout)
