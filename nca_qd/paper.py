@@ -58,6 +58,9 @@ QD_TABLE = {
     (f"{MF} (entropy+n_stations)", "map_elites α=5"): ((2398.99, 422.61), (0.14, 0.02)),
 }
 
+# Table 1: N_eval, the evaluations behind each of table 4's rows, by domain.
+QD_EVALUATIONS = {"maze": 100_000, WE: 10_000, WU: 10_000, MF: 10_000}
+
 # Table 2 (and table 5 for CMA-ES); manufacturing's CMA-MAE row is its "opt" generator.
 SCALING = {
     (WE, "cma_mae α=0"): Scaling(100, (6.79, 0.00), 0, None),

@@ -281,3 +281,24 @@ def test_maze_domain_scores_with_the_papers_agent(tmp_path, monkeypatch):
     ):
         with pytest.raises(NcaQdError, match=match):
             make_domain({**cfg, "agent": agent})
+
+
+def test_a_checkpoint_that_is_not_the_papers_says_so(tmp_path, monkeypatch, caplog):
+    """Another file with the paper's network loads (another seed's agent is a fair thing to
+    try), but the log names it as not the paper's model_20000.tar, by its own SHA-256; the
+    paper's own file is recognised by its digest (checked here against an independent hash)."""
+    import hashlib
+
+    from nca_qd.agent import paper_accel
+
+    compass_checkpoint(tmp_path / "m.tar", monkeypatch)
+    digest = hashlib.sha256((tmp_path / "m.tar").read_bytes()).hexdigest()
+    with caplog.at_level("WARNING", logger="nca_qd.agent.paper_accel"):
+        paper_accel.load_params(str(tmp_path / "m.tar"))
+    assert f"is not the paper's accel_seed_1/model_20000.tar (SHA-256 {digest})" in caplog.text
+    caplog.clear()
+    monkeypatch.setattr(paper_accel, "PAPER_CHECKPOINT_SHA256", digest)
+    paper_accel.load_params.cache_clear()
+    with caplog.at_level("WARNING", logger="nca_qd.agent.paper_accel"):
+        paper_accel.load_params(str(tmp_path / "m.tar"))
+    assert "is not the paper's" not in caplog.text

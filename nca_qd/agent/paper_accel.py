@@ -29,6 +29,7 @@ measuring instrument instead of ours:
 from __future__ import annotations
 
 import collections
+import logging
 import pickle
 import zipfile
 from functools import lru_cache, partial
@@ -41,6 +42,8 @@ import numpy as np
 
 from nca_qd.errors import NcaQdError
 from nca_qd.sim import maze_agent as ma
+
+log = logging.getLogger(__name__)
 
 N_ENVS = 10  # the paper's RLAgentConfig.n_envs
 N_ACTIONS = 7  # minigrid's actions; 3..6 act on objects the maze has none of
@@ -237,10 +240,27 @@ def _episode_policy(p, rollout=None) -> ma.Policy:
     return ma.Policy(prepare, init, act, deterministic=False, rollout=rollout)
 
 
+# SHA-256 of ``accel_seed_1/model_20000.tar`` in the paper's repository (the file every shipped
+# result with these kinds was measured by): a run's log says whether its weights are that file.
+PAPER_CHECKPOINT_SHA256 = "5ad0ce09ce1f1763f4b2c16f2ec08da1abb6a0564b0cf715e9be4c0ac7a634ae"
+
+
+def checkpoint_sha256(path: str | Path) -> str:
+    import hashlib
+
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
 @lru_cache(maxsize=4)
 def load_params(path: str) -> dict[str, jax.Array]:
-    """The paper's checkpoint at ``path``, checked (cached per path)."""
-    return agent_params(read_state_dict(path))
+    """The paper's checkpoint at ``path``, checked (cached per path). Another file with the
+    same network (another seed's, or a later step's) loads too, with a warning naming it: a
+    result measured by it is not measured by the paper's agent."""
+    params = agent_params(read_state_dict(path))  # a missing or broken file: one clear error
+    digest = checkpoint_sha256(path)
+    if digest != PAPER_CHECKPOINT_SHA256:
+        log.warning("%s is not the paper's accel_seed_1/model_20000.tar (SHA-256 %s)", path, digest)
+    return params
 
 
 def _params(weights: str | Path | None, kind: str) -> dict[str, jax.Array]:
