@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from nca_qd.errors import NcaQdError
+from nca_qd.paper import DSAGE_SETTINGS
 from nca_qd.paper import QD_EVALUATIONS as PAPER_EVALUATIONS
 from nca_qd.paper import QD_TABLE as PAPER_TABLE
 from nca_qd.run_dir import METRICS_FILE, load_run_config
@@ -76,11 +77,27 @@ def algorithm_label(cfg) -> str:
         alpha = OmegaConf.select(cfg, "domain.alpha", default=None)
     name = str(cfg.algo.name)
     label = name if alpha is None else f"{name} α={float(alpha):g}"
+    if name == "dsage":
+        label += dsage_reduction(cfg)
     kind = OmegaConf.select(cfg, "domain.agent.kind", default=None)
     weights = OmegaConf.select(cfg, "domain.agent.weights", default=None)
     if kind is not None and (kind != "learned" or weights not in (None, "")):
         label += f", agent {kind}" + ("" if weights in (None, "") else f" ({Path(str(weights)).name})")
     return label
+
+
+def dsage_reduction(cfg) -> str:
+    """`` (reduced: surrogate.epochs 20, …)`` for a DSAGE run below DSAGE's own settings
+    (:data:`nca_qd.paper.DSAGE_SETTINGS`; a CPU run at the paper's settings costs hours per
+    outer iteration), so that its row is its own arm and says what it left out; "" otherwise."""
+    from omegaconf import OmegaConf
+
+    cut = []
+    for key, full in DSAGE_SETTINGS.items():
+        value = OmegaConf.select(cfg, f"algo.{key}", default=None)
+        if value is not None and float(value) < full:
+            cut.append(f"{key} {value:,} of {full:,}")
+    return f" (reduced: {', '.join(cut)})" if cut else ""
 
 
 def find_runs(paths: Iterable[str | Path]) -> list[Path]:
@@ -163,15 +180,18 @@ def paper_row(group: tuple[str, str], evaluations: float) -> str:
     algorithm, measured by the shipped agent or by the paper's own as its search played it
     (``paper_accel_search``: the agent behind the paper's rows), not by other weights; with the
     paper's budget beside it where the run's differs (a 10,000-evaluation run is not set beside
-    a 100,000 row unmarked)."""
+    a 100,000 row unmarked); a reduced DSAGE's row says the paper's ran at DSAGE's settings."""
     domain, label = group
     algorithm, _, agent = label.partition(", agent ")
     if agent and not agent.startswith("paper_accel_search"):
         return "—"
+    algorithm, reduced, _ = algorithm.partition(" (reduced: ")
     paper = PAPER_TABLE.get((domain, algorithm))
     if paper is None:
         return "—"
     text = f"{paper[0][0]:,.2f} ± {paper[0][1]:,.2f} / {paper[1][0]:.2f} ± {paper[1][1]:.2f}"
+    if reduced:
+        text += " (DSAGE's full settings)"
     budget = PAPER_EVALUATIONS.get(domain.split(" (")[0])
     if budget is not None and abs(evaluations - budget) > 0.01 * budget:
         text += f" (at {budget:,} evaluations: not this run's budget)"

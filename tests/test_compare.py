@@ -126,6 +126,32 @@ def test_maze_runs_measured_by_another_agent_are_not_pooled(tmp_path):
     assert "12,468.20" in rows[0] and "12,468.20" in rows[1] and "12,468.20" not in rows[2]
 
 
+def test_a_reduced_dsage_is_its_own_arm_and_says_what_it_cut(tmp_path):
+    """DSAGE below its public settings (the paper's) on a CPU: its own row, labelled with what
+    was cut, the paper's row beside it marked as DSAGE's full settings; at those settings (or
+    more) it is plain ``dsage`` beside the paper's row."""
+
+    def run(path, seed, algo_extra):
+        _fake_run(path, "dsage", seed, [(100000, 1000, 0.05)], measures=("entropy", "path_length"))
+        text = (path / "config.yaml").read_text().replace("  name: dsage\n", "  name: dsage\n" + algo_extra)
+        (path / "config.yaml").write_text(text)
+
+    cut = "  inner:\n    iterations: 500\n  surrogate:\n    epochs: 20\n    features: 32\n"
+    run(tmp_path / "r0", 0, cut)
+    run(tmp_path / "r1", 1, cut)
+    run(tmp_path / "full", 0, "  inner:\n    iterations: 10000\n  surrogate:\n    epochs: 200\n")
+    table, _ = compare([tmp_path], tmp_path / "out")
+    rows = {r.split(" | ")[1]: r for r in table.splitlines() if r.startswith("| maze")}
+    label = (
+        "dsage (reduced: inner.iterations 500 of 10,000, surrogate.epochs 20 of 200, "
+        "surrogate.features 32 of 64)"
+    )
+    assert sorted(rows) == ["dsage", label]
+    assert " 2 (0,1) " in rows[label] and " 1 (0) " in rows["dsage"]
+    assert rows[label].endswith("| 1,444.20 ± 52.60 / 0.09 ± 0.00 (DSAGE's full settings) |")
+    assert rows["dsage"].endswith("| 1,444.20 ± 52.60 / 0.09 ± 0.00 |")
+
+
 SUMMARY_HEAD = (
     "domain,size,which,n_agents,layout,kind,cell,gen_seconds,repair_status,repair_seconds,similarity,hamming,"
     "simulator,runs,completed,timed_out,errors,success_rate,throughput_success_mean,throughput_success_se,"
