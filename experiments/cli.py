@@ -155,6 +155,13 @@ def _raise_interrupt(signum, frame) -> None:
 RESUME_HINT = "the last checkpoint is intact; resume with resume=<run dir>"
 
 
+def _path_error(exc: OSError) -> str:
+    """``<path>: <reason>`` for a file-system error (both paths of a failed rename or copy)."""
+    paths = [str(p) for p in (exc.filename, exc.filename2) if p is not None]
+    reason = exc.strerror or str(exc)
+    return f"{' -> '.join(paths)}: {reason}" if paths else reason
+
+
 def main_guard(body: Callable[[list[str]], int | None], on_interrupt: str = "") -> Callable[[], None]:
     """Run ``body(argv)``; user errors (a map too large for memory among them: the stages
     refuse it from their estimates, nca_qd.memory, and an allocation that fails all the same
@@ -182,6 +189,11 @@ def main_guard(body: Callable[[list[str]], int | None], on_interrupt: str = "") 
                 f"error: out of memory ({exc or 'allocation failed'}): ask for a smaller map or fewer agents",
                 file=sys.stderr,
             )
+            sys.exit(EXIT_USAGE)
+        except (FileNotFoundError, NotADirectoryError, IsADirectoryError, PermissionError) as exc:
+            # a path given on the command line that cannot be read or written (an output folder
+            # under a missing or read-only parent): the path and the reason, not a traceback
+            print(f"error: {_path_error(exc)}", file=sys.stderr)
             sys.exit(EXIT_USAGE)
         except KeyboardInterrupt:
             print(f"interrupted{': ' + on_interrupt if on_interrupt else ''}", file=sys.stderr)

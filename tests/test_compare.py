@@ -272,3 +272,23 @@ def test_the_curves_over_agents_carry_their_exact_points_and_the_main_counts(tmp
     assert nca[2].endswith("| 10, 10 %, 3.00 ± 0.10 | 20, 100 %, 16.00 ± 0.10 |")
     assert sum("nca, cma_mae α=0 s0" in r for r in rows) == 3 and not any("α=1" in r for r in rows)
     assert sum("| human |" in r for r in rows) == 2  # one arm's: the same layout in every arm
+
+
+def test_an_output_folder_that_cannot_be_made_is_one_line_exit_2(tmp_path, monkeypatch, capsys):
+    """``out=`` under a file (or a missing, unwritable place): the path and the reason on one
+    line, exit 2, no traceback; the runs read are untouched."""
+    import sys
+
+    from experiments import compare as compare_cli
+    from experiments.cli import main_guard
+
+    _fake_run(tmp_path / "r", "cma_mae", 0, [(150, 10, 0.1)])
+    (tmp_path / "file").write_text("a file, not a folder")
+    before = (tmp_path / "r" / "metrics.csv").read_bytes()
+    monkeypatch.setattr(sys, "argv", ["prog", f"runs={tmp_path / 'r'}", f"out={tmp_path / 'file' / 'cmp'}"])
+    with pytest.raises(SystemExit) as exc:
+        main_guard(compare_cli.main)()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exc.value.code == 2
+    assert err == [f"error: {tmp_path / 'file' / 'cmp'}: Not a directory"]
+    assert (tmp_path / "r" / "metrics.csv").read_bytes() == before
