@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import MissingMandatoryValue
 
 from nca_qd.errors import NcaQdError
 
@@ -189,6 +190,10 @@ def main_guard(body: Callable[[list[str]], int | None], on_interrupt: str = "") 
                 f"error: out of memory ({exc or 'allocation failed'}): ask for a smaller map or fewer agents",
                 file=sys.stderr,
             )
+            sys.exit(EXIT_USAGE)
+        except MissingMandatoryValue as exc:  # a setting the YAML leaves ??? for the user
+            key = exc.full_key
+            print(f"error: give {key}=<value> (required; --help lists the settings)", file=sys.stderr)
             sys.exit(EXIT_USAGE)
         except (FileNotFoundError, NotADirectoryError, IsADirectoryError, PermissionError) as exc:
             # a path given on the command line that cannot be read or written (an output folder

@@ -45,8 +45,8 @@ PINNED = ("domain", "T", "simulator", "window", "replan", "time_limit_s", *PLANN
 
 
 def _list(cfg: DictConfig, key: str) -> list:
-    value = cfg[key]
-    if OmegaConf.is_missing(cfg, key) or not OmegaConf.is_list(value) or len(value) == 0:
+    value = None if OmegaConf.is_missing(cfg, key) else cfg[key]
+    if value is None or not OmegaConf.is_list(value) or len(value) == 0:
         raise NcaQdError(f"{key} must be a non-empty list, e.g. {key}=[a,b]")
     return list(value)
 

@@ -206,3 +206,17 @@ def test_a_second_interrupt_drops_the_runs_under_way(monkeypatch, capsys):
     err = capsys.readouterr().err
     assert stop.value.code == 130 and kept == [0]
     assert "waiting for the 2 run(s) under way" in err and "the runs under way are dropped" in err
+
+
+@pytest.mark.parametrize("missing", ["layouts", "agents", "out"])
+def test_a_required_setting_left_out_is_one_line_exit_2(tmp_path, maps, monkeypatch, capsys, missing):
+    """The YAML's ``???`` settings: leaving one out names it, exit 2, no traceback."""
+    given = {"layouts": f"layouts=[{maps[0]}]", "agents": "agents=[4]", "out": f"out={tmp_path / 'o'}"}
+    argv = [v for k, v in given.items() if k != missing] + ["T=10"]
+    monkeypatch.setattr(sys, "argv", ["prog", *argv])
+    with pytest.raises(SystemExit) as exc:
+        main_guard(main)()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exc.value.code == 2
+    assert len(err) == 1 and err[0].startswith("error: ") and f"{missing}=" in err[0], err
+    assert not (tmp_path / "o").exists()

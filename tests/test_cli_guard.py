@@ -1,0 +1,45 @@
+"""experiments.cli.main_guard: what any entry point does with a user's mistake — one line on
+stderr, exit 2, no traceback — for the mistakes no command checks by itself."""
+
+from __future__ import annotations
+
+import sys
+
+import pytest
+from omegaconf import OmegaConf
+
+from experiments.cli import main_guard
+
+
+def _run(body, monkeypatch, capsys):
+    monkeypatch.setattr(sys, "argv", ["prog"])
+    with pytest.raises(SystemExit) as exc:
+        main_guard(body)()
+    return exc.value.code, capsys.readouterr().err.strip().splitlines()
+
+
+def test_a_required_setting_read_before_any_check_names_itself(monkeypatch, capsys):
+    cfg = OmegaConf.create({"runs": "???", "nested": {"out": "???"}})
+    code, err = _run(lambda argv: print(cfg.nested.out), monkeypatch, capsys)
+    assert code == 2 and err == ["error: give nested.out=<value> (required; --help lists the settings)"]
+
+
+def test_a_path_that_cannot_be_written_is_the_path_and_the_reason(tmp_path, monkeypatch, capsys):
+    (tmp_path / "f").write_text("x")
+
+    def body(argv):
+        (tmp_path / "f" / "out").mkdir(parents=True)
+
+    code, err = _run(body, monkeypatch, capsys)
+    assert code == 2 and err == [f"error: {tmp_path / 'f' / 'out'}: Not a directory"]
+
+
+def test_a_programming_error_is_not_dressed_as_a_user_error(monkeypatch, capsys):
+    """Anything else keeps its traceback: a bug must not read as bad input."""
+
+    def body(argv):
+        raise ValueError("a bug")
+
+    monkeypatch.setattr(sys, "argv", ["prog"])
+    with pytest.raises(ValueError, match="a bug"):
+        main_guard(body)()
