@@ -55,7 +55,7 @@ def main(argv: list[str]) -> int:
     from nca_qd.pipeline import make_generator
     from nca_qd.run_dir import select_elites
 
-    run_cfg, archive = load_run(cfg.run_dir)
+    run_cfg, archive = load_run(cfg.run_dir, command="experiments.dynamics")
     domain = make_domain(run_cfg["domain"])
     generator = make_generator(domain)
     objective = np.asarray(archive["objective"])

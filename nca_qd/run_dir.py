@@ -84,6 +84,21 @@ def select_elites(objective: np.ndarray, n: int) -> np.ndarray:
     return order[:n]
 
 
+def _why_no_archive(run_dir: str | Path) -> str:
+    """What a run directory without an archive most likely is: a run before its first iteration,
+    or one whose archive was not kept (shipped runs of some studies keep their config, metrics
+    and pictures only)."""
+    metrics = Path(run_dir) / METRICS_FILE
+    lines = metrics.read_text().splitlines()[1:] if metrics.is_file() else []
+    done = [ln for ln in lines if ln.strip()]
+    if not done:
+        return "has the run finished an iteration yet?"
+    return (
+        f"its {METRICS_FILE} records {len(done)} iterations, so its archive was not kept here: "
+        f"re-run it from its {CONFIG_FILE} to rebuild it"
+    )
+
+
 def load_archive(run_dir: str | Path, which: str = "result") -> dict[str, Any]:
     """A run's archive as per-cell arrays (:func:`nca_qd.qd.archive_io.archive_view`:
     ``objective``, ``measures``, ``thresholds``, ``centroids`` and ``genotypes`` indexed by cell).
@@ -99,9 +114,7 @@ def load_archive(run_dir: str | Path, which: str = "result") -> dict[str, Any]:
         ckpt = Path(run_dir) / SNAPSHOT_FILE
     legacy = Path(run_dir) / LEGACY_CHECKPOINT_FILE
     if not ckpt.is_file() and not legacy.is_file():
-        raise NcaQdError(
-            f"{path} not found and no {CHECKPOINT_FILE} beside it (has the run finished an iteration yet?)"
-        )
+        raise NcaQdError(f"{path} not found and no {CHECKPOINT_FILE} beside it ({_why_no_archive(run_dir)})")
     archive, iteration = archive_from_checkpoint(ckpt if ckpt.is_file() else legacy, which)
     source = ckpt if ckpt.is_file() else legacy
     log.info("%s: %s archive read from %s (iteration %d)", run_dir, which, source.name, iteration)

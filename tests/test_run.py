@@ -483,3 +483,20 @@ def test_a_run_kept_under_results_writes_its_portable_snapshot_by_default(tmp_pa
     the portable snapshot a fresh clone resumes from; elsewhere only when asked."""
     exp = Experiment(_cfg(f"snapshot.enabled={enabled}"), tmp_path / where)
     assert (exp.snapshot_policy is not None) == expected
+
+
+def test_a_run_without_its_archive_says_whether_it_ran(tmp_path):
+    """No archive, checkpoint or snapshot: a run before its first iteration is told so; a run
+    whose metrics record iterations (a shipped study that kept only config, metrics and
+    pictures) is told its archive was not kept and how to rebuild it."""
+    from nca_qd.errors import NcaQdError
+    from nca_qd.run_dir import load_archive
+
+    (tmp_path / "config.yaml").write_text("seed: 0\n")
+    (tmp_path / "metrics.csv").write_text("iteration,evaluations,qd_score,coverage\n")
+    with pytest.raises(NcaQdError, match=r"has the run finished an iteration yet\?"):
+        load_archive(tmp_path)
+    with (tmp_path / "metrics.csv").open("a") as fh:
+        fh.write("1,150,10,0.1\n2,300,20,0.2\n")
+    with pytest.raises(NcaQdError, match="records 2 iterations, so its archive was not kept here: re-run it"):
+        load_archive(tmp_path)

@@ -37,9 +37,12 @@ log = logging.getLogger("nca_qd.evaluate")
 SUPPORTED = layout_names()  # the multi-agent domains (the maze has experiments.maze_transfer)
 
 
-def load_run(run_dir: str | Path, domain: str | None = None) -> tuple[Any, dict[str, np.ndarray]]:
+def load_run(
+    run_dir: str | Path, domain: str | None = None, command: str = "experiments.evaluate"
+) -> tuple[Any, dict[str, np.ndarray]]:
     """The run's config and result archive, checked: a run directory of a supported domain
-    (and of ``domain`` if given) whose result archive holds at least one elite."""
+    (and of ``domain`` if given) whose result archive holds at least one elite; ``command``
+    names the caller in the error for a domain it does not take."""
     from omegaconf import OmegaConf
 
     from nca_qd.run_dir import CONFIG_FILE, load_archive, load_run_config
@@ -54,7 +57,7 @@ def load_run(run_dir: str | Path, domain: str | None = None) -> tuple[Any, dict[
     from nca_qd.domains import DOMAINS
 
     if name in DOMAINS and name not in SUPPORTED:
-        raise NcaQdError(f"{path} is a {name} run: experiments.evaluate supports only {', '.join(SUPPORTED)}")
+        raise NcaQdError(f"{path} is a {name} run: {command} supports only {', '.join(SUPPORTED)}")
     if name not in SUPPORTED:
         raise NcaQdError(
             f"{path}: unknown domain {name!r} in {CONFIG_FILE} (supported: {', '.join(SUPPORTED)})"
