@@ -60,8 +60,11 @@ def load_run_config(run_dir: str | Path) -> DictConfig:
 
 def migrate(cfg: DictConfig) -> list[str]:
     """Fill in the :data:`LEGACY_SETTINGS` a saved run configuration lacks (in place, only within
-    blocks it has: a maze run without an ``eval`` block gets none); returns the keys filled."""
-    filled = []
+    blocks it has); returns the keys filled. They are all the multi-agent scorer's (screen,
+    exact planner): a maze run's ``eval`` block (workers, retries) gets none."""
+    filled: list[str] = []
+    if OmegaConf.select(cfg, "domain.name") == "maze":
+        return filled
     for dotted, value in LEGACY_SETTINGS.items():
         block, key = dotted.rsplit(".", 1)
         parent = OmegaConf.select(cfg, block)

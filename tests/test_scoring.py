@@ -758,6 +758,7 @@ def test_a_run_saved_before_a_setting_is_read_through_the_migration(tmp_path):
         (old, {"eval": {"exact": "selective"}}),
         (new, {"eval": {"screen_estimate": "free_flow", "screen_congested": [1.0, 2.0, 3.0]}}),
         (maze, {"domain": {"name": "maze"}}),
+        (tmp_path / "maze2", {"domain": {"name": "maze"}, "eval": {"workers": None, "retries": 2}}),
     ):
         d.mkdir()
         OmegaConf.save(OmegaConf.create(cfg), d / "config.yaml")
@@ -767,6 +768,8 @@ def test_a_run_saved_before_a_setting_is_read_through_the_migration(tmp_path):
     kept = ScoringConfig.from_cfg(load_run_config(new).eval)
     assert kept.screen_estimate == "free_flow" and kept.screen_congested == (1.0, 2.0, 3.0)
     assert "eval" not in load_run_config(maze)
+    # a maze run's eval block (workers, retries) gets none of the multi-agent scorer's settings
+    assert dict(load_run_config(tmp_path / "maze2").eval) == {"workers": None, "retries": 2}
 
 
 def _scorer(extra):
