@@ -41,8 +41,19 @@ def compose_config(config_name: str, overrides: Sequence[str]) -> DictConfig:
             cfg = compose(config_name=config_name, overrides=list(overrides))
         OmegaConf.resolve(cfg)
     except (HydraException, OmegaConfBaseException) as exc:
-        raise NcaQdError(f"bad configuration: {_explain(config_name, str(exc))}") from None
+        hint = _quote_hint(overrides) if "mismatched input '='" in str(exc) else ""
+        raise NcaQdError(f"bad configuration: {_explain(config_name, str(exc))}{hint}") from None
     return cfg
+
+
+def _quote_hint(overrides: Sequence[str]) -> str:
+    """Hydra's grammar stops at a second ``=`` (the paper's map files are named ``…_a=1.json``):
+    name the override and the quoting that passes it."""
+    for arg in overrides:
+        key, _, value = arg.partition("=")
+        if "=" in value and not value.startswith(("'", '"')):
+            return f"; a value holding '=' must be quoted: '{key}=\"{value}\"'"
+    return ""
 
 
 def _explain(config_name: str, message: str) -> str:

@@ -43,3 +43,18 @@ def test_a_programming_error_is_not_dressed_as_a_user_error(monkeypatch, capsys)
     monkeypatch.setattr(sys, "argv", ["prog"])
     with pytest.raises(ValueError, match="a bug"):
         main_guard(body)()
+
+
+def test_a_value_with_an_equals_sign_gets_the_quoting_that_passes_it():
+    """The paper's map files are named ``…_a=1.json``; Hydra's grammar stops at the second
+    ``=``. The error names the override and its quoted form, which then composes."""
+    from experiments.cli import compose_config
+    from nca_qd.errors import NcaQdError
+
+    with pytest.raises(NcaQdError) as exc:
+        compose_config("simulate", ["layout=maps/x_a=1.json", "agents=10"])
+    assert str(exc.value).endswith("""must be quoted: 'layout="maps/x_a=1.json"'""")
+    assert compose_config("simulate", ['layout="maps/x_a=1.json"', "agents=10"]).layout == "maps/x_a=1.json"
+    with pytest.raises(NcaQdError) as exc:  # another mistake: no hint
+        compose_config("simulate", ["no_such_key=1"])
+    assert "quoted" not in str(exc.value)
