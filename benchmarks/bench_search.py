@@ -97,7 +97,7 @@ def replay_early_stop(run_dirs: str, deltas=(0.02, 0.05, 0.1)) -> None:
     the elite (they would have entered the result archive)."""
     import numpy as np
 
-    from benchmarks.bench_screen import _elite_before
+    from benchmarks.screen_search import _elite_before
     from nca_qd.scoring.keys import layout_key
 
     for run in run_dirs.split(","):
