@@ -90,3 +90,15 @@ def ctrl_c_raises():
     old = signal.signal(signal.SIGINT, signal.default_int_handler)
     yield
     signal.signal(signal.SIGINT, old)
+
+
+@pytest.fixture(scope="module")
+def maps(tmp_path_factory):
+    """A maps folder holding the 9x14 human-designed warehouse, as ``$NCA_QD_MAPS`` for the
+    module's tests (the tiny evaluations' human baseline)."""
+    from evaluate_helpers import write_human_maps
+
+    root = write_human_maps(tmp_path_factory.mktemp("maps"))
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("NCA_QD_MAPS", str(root))
+        yield root

@@ -62,7 +62,7 @@ def test_the_summary_counts_layouts_that_beat_their_elite():
 
 # ------------------------------------------------------------------ crowding threshold
 def _scenarios(n: int):
-    from test_evaluate import HUMAN_9x14
+    from evaluate_helpers import HUMAN_9x14
 
     from nca_qd.sim.scenario import build_scenario
 

@@ -26,8 +26,8 @@ import shutil
 from pathlib import Path
 
 import pytest
-from test_evaluate import TINY_RUN as TINY_EVALUATE_RUN
-from test_evaluate import HUMAN_9x14, make_run, record_lines
+from evaluate_helpers import TINY_RUN as TINY_EVALUATE_RUN
+from evaluate_helpers import make_run, record_lines, write_human_maps
 
 from experiments import evaluate as evaluate_cli
 
@@ -77,12 +77,7 @@ SETTINGS = [
 def run_evaluation(root: Path, out: Path | None = None) -> Path:
     """The tiny evaluation under ``root`` (its maps and run made once), written to ``out``
     (default ``root/evaluation``); returns the output directory."""
-    maps = root / "maps"
-    if not maps.exists():
-        (maps / "warehouse").mkdir(parents=True)
-        (maps / "warehouse" / "human_9x14.json").write_text(
-            json.dumps({"name": "human_9x14", "layout": HUMAN_9x14, "n_row": 9, "n_col": 14})
-        )
+    maps = write_human_maps(root / "maps")
     run_dir = root / "run" if (root / "run").exists() else make_run(root / "run", TINY_RUN)
     out = out or root / "evaluation"
     with pytest.MonkeyPatch.context() as mp, contextlib.redirect_stdout(io.StringIO()):
