@@ -18,7 +18,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from experiments.cli import check_writable, compose_config, main_guard
-from nca_qd.errors import NcaQdError
+from nca_qd.errors import NcaQdError, require_bool
 
 FITS = ("crowd_threshold", "crowd_drift", "screen_skips", "congested")
 
@@ -68,7 +68,12 @@ def _lines(cfg) -> Iterator[dict]:
         thresholds = None if cfg.replay is None else _thresholds(cfg.replay)
         n = _int(cfg, "n", 0)
         return skips.check(
-            Path(cfg.run_dir), n, _int(cfg, "seed", 0), Path(cfg.out), thresholds, bool(cfg.replay_only)
+            Path(cfg.run_dir),
+            n,
+            _int(cfg, "seed", 0),
+            Path(cfg.out),
+            thresholds,
+            require_bool("replay_only", cfg.replay_only),
         )
     if cfg.fit == "congested":
         from nca_qd.calibration import congested

@@ -38,7 +38,7 @@ from experiments.cli import CONF_DIR, compose_config, main_guard
 from experiments.evaluate import main as evaluate_main
 from experiments.run import EXIT_LEG_ENDED
 from experiments.run import main as run_main
-from nca_qd.errors import NcaQdError
+from nca_qd.errors import NcaQdError, require_bool
 
 # What Ctrl-C or SIGTERM keeps: a search's last checkpoint, an evaluation's finished runs.
 INTERRUPTED = (
@@ -210,7 +210,7 @@ def main(argv: list[str]) -> int:
     ):
         raise NcaQdError(f"leg_seconds must be a positive number of seconds or null, got {budget!r}")
     root, common, arms, evaluate = load_plan(str(cfg.plan))
-    if cfg.status:
+    if require_bool("status", cfg.status):
         for arm in arms:
             line = _status_line(arm, progress(root / arm))
             if evaluate is not None and progress(root / arm)["state"] == "finished":

@@ -17,7 +17,7 @@ import os
 from pathlib import Path
 
 from experiments.cli import compose_config, main_guard, take_domain
-from nca_qd.errors import NcaQdError
+from nca_qd.errors import NcaQdError, require_bool
 from nca_qd.io import atomic_write_text, load_map
 
 
@@ -53,7 +53,7 @@ def _from_run(cfg) -> tuple[list[str], str, str]:
     rows, cols = (
         (cfg.rows, cfg.cols) if cfg.rows is not None or cfg.cols is not None else g.full_shape("train")
     )
-    layout = g.layout(rows, cols, repair=bool(cfg.repair), n_shelves=cfg.n_shelves)
+    layout = g.layout(rows, cols, repair=cfg.repair, n_shelves=cfg.n_shelves)
     name = cfg.name or f"{Path(str(cfg.run)).name}_c{g.cell}_{layout.shape[0]}x{layout.shape[1]}"
     return g.rows(layout), g.domain.name, name
 
@@ -101,7 +101,9 @@ def main(argv: list[str]) -> int:
     cfg = compose_config("export", argv)
     if domain_override is not None:
         cfg.domain = domain_override
-    if bool(cfg.layout) + bool(cfg.run) + bool(cfg.human) != 1:
+    for switch in ("human", "repair"):
+        require_bool(switch, cfg[switch])
+    if bool(cfg.layout) + bool(cfg.run) + cfg.human != 1:
         raise NcaQdError("give one of layout=<file.json>, run=<run dir> or human=true")
     if cfg.format not in FORMATS:
         raise NcaQdError(f"unknown format {cfg.format!r} (known: {', '.join(FORMATS)})")

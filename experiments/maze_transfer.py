@@ -20,7 +20,7 @@ from pathlib import Path
 from omegaconf import OmegaConf
 
 from experiments.cli import compose_config, main_guard
-from nca_qd.errors import NcaQdError
+from nca_qd.errors import NcaQdError, require_bool
 
 
 def main(argv: list[str]) -> int:
@@ -32,6 +32,8 @@ def main(argv: list[str]) -> int:
         v = cfg[key]
         if not isinstance(v, int) or isinstance(v, bool) or v <= 0:
             raise NcaQdError(f"{key} must be a positive integer, got {v!r}")
+    for key in ("pictures", "progress"):
+        require_bool(key, cfg[key])
     stamp = datetime.datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
     out = Path(cfg.out or f"runs/maze_transfer/{stamp}")
     out.mkdir(parents=True, exist_ok=True)

@@ -20,7 +20,7 @@ from pathlib import Path
 
 from experiments.cli import check_writable, compose_config, main_guard, size_pair
 from nca_qd.domains import domain_class
-from nca_qd.errors import NcaQdError
+from nca_qd.errors import NcaQdError, require_bool
 from nca_qd.io import load_map
 
 
@@ -99,8 +99,7 @@ def render_elites(out: str | Path, run_dir: str | Path, elites, size: str = "tra
 
 def main(argv: list[str]) -> int:
     cfg = compose_config("render", argv)
-    if not isinstance(cfg.pictures, bool):
-        raise NcaQdError(f"pictures must be true or false, got {cfg.pictures!r}")
+    require_bool("pictures", cfg.pictures)
     if cfg.get("run") and cfg.pictures:
         from nca_qd.run_dir import load_run_config
         from nca_qd.run_pictures import write_run_pictures

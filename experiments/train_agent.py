@@ -17,7 +17,7 @@ from pathlib import Path
 from omegaconf import OmegaConf
 
 from experiments.cli import RESUME_HINT, compose_config, main_guard, merge_overrides
-from nca_qd.errors import NcaQdError
+from nca_qd.errors import NcaQdError, require_bool
 
 
 def main(argv: list[str]) -> int:
@@ -39,7 +39,9 @@ def main(argv: list[str]) -> int:
         if (run_path / CHECKPOINT_FILE).exists():
             raise NcaQdError(f"{run_path} already holds a run; continue it with resume={run_path}")
     cfg.run_dir, cfg.resume = str(run_path), None
-    ship_only = bool(cfg.get("ship_only", False))
+    ship_only = require_bool("ship_only", cfg.get("ship_only", False))
+    require_bool("ship", cfg.ship)
+    require_bool("progress", cfg.progress)
     if ship_only and not resume:
         raise NcaQdError("ship_only=true needs resume=<run dir>")
     cfg.ship_only = False

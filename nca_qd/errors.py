@@ -12,3 +12,11 @@ class NcaQdError(Exception):
 
 class MapFormatError(NcaQdError):
     """A map file that is not a valid layout (unknown tile, ragged rows, wrong sizes)."""
+
+
+def require_bool(name: str, value: object) -> bool:
+    """``value`` if it is a boolean, else :class:`NcaQdError` naming the setting: a YAML or
+    command-line ``maybe`` or ``1`` would otherwise pass as true wherever code only tests it."""
+    if not isinstance(value, bool):
+        raise NcaQdError(f"{name} must be true or false, got {value!r}")
+    return value

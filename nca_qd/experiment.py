@@ -48,7 +48,7 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from nca_qd.domains import Domain, make_domain
-from nca_qd.errors import NcaQdError
+from nca_qd.errors import NcaQdError, require_bool
 from nca_qd.io import atomic_write_text, load_pytree
 from nca_qd.pipeline import make_generator, make_objective
 from nca_qd.qd import archive_io, checkpoint
@@ -159,6 +159,9 @@ def validate_config(cfg: DictConfig) -> None:
             or not all(isinstance(s, int) and not isinstance(s, bool) and s > 1 for s in size)
         ):
             raise NcaQdError(f"domain.size.{which} must be two integers > 1, got {size!r}")
+    for path in ("qd.progress", "output.pictures", "output.repaired"):
+        if OmegaConf.select(cfg, path) is not None:
+            require_bool(path, OmegaConf.select(cfg, path))
     lr = OmegaConf.select(cfg, "qd.archive.learning_rate")
     if not isinstance(lr, (int, float)) or not 0 <= lr <= 1:
         raise NcaQdError(f"qd.archive.learning_rate must be in [0, 1], got {lr!r}")
@@ -230,10 +233,9 @@ class Experiment:
         # the simulators that scored earlier iterations of a run resumed across a change.
         self.simulator = getattr(self.objective.evaluator, "simulator_version", None)
         self.simulator_history: list[dict] = []
-        allow = cfg.get("allow_simulator_change", False)
-        if not isinstance(allow, bool):
-            raise NcaQdError(f"allow_simulator_change must be true or false, got {allow!r}")
-        self.allow_simulator_change = allow
+        self.allow_simulator_change = require_bool(
+            "allow_simulator_change", cfg.get("allow_simulator_change", False)
+        )
         self.leg_seconds = _leg_seconds(cfg.get("leg_seconds"))
         self.leg_ended = False  # set by run() when leg_seconds ended it before the search's end
 

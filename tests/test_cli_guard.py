@@ -58,3 +58,33 @@ def test_a_value_with_an_equals_sign_gets_the_quoting_that_passes_it():
     with pytest.raises(NcaQdError) as exc:  # another mistake: no hint
         compose_config("simulate", ["no_such_key=1"])
     assert "quoted" not in str(exc.value)
+
+
+@pytest.mark.parametrize(
+    "module, argv, name",
+    [
+        ("campaign", ["plan=warehouse_even_qd", "status=maybe"], "status"),
+        ("export", ["human=maybe", "out=OUT"], "human"),
+        ("export", ["run=x", "repair=1", "out=OUT"], "repair"),
+        ("maze_transfer", ["pictures=maybe", "out=OUT"], "pictures"),
+        ("train_agent", ["ship=maybe", "run_dir=OUT"], "ship"),
+        ("run", ["domain=maze", "qd.progress=maybe", "run_dir=OUT"], "qd.progress"),
+        ("run", ["domain=maze", "output.pictures=yes", "run_dir=OUT"], "output.pictures"),
+    ],
+)
+def test_a_switch_that_is_not_true_or_false_is_refused_before_anything_runs(
+    module, argv, name, tmp_path, monkeypatch, capsys
+):
+    """A YAML or command-line ``maybe`` (or ``1``) would pass as true wherever code only
+    tests the value: each switch is refused by name, and the command leaves nothing behind."""
+    import importlib
+
+    main = importlib.import_module(f"experiments.{module}").main
+    out = tmp_path / "out"
+    monkeypatch.setattr(sys, "argv", ["prog", *(a.replace("OUT", str(out)) for a in argv)])
+    with pytest.raises(SystemExit) as exc:
+        main_guard(main)()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert exc.value.code == 2
+    assert err[-1].startswith(f"error: {name} must be true or false, got ")
+    assert not out.exists() or not any(out.iterdir())

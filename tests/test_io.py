@@ -95,3 +95,22 @@ def test_the_package_says_its_version():
 
     meta = tomllib.loads((Path(__file__).resolve().parents[1] / "pyproject.toml").read_text())
     assert nca_qd.__version__ == meta["project"]["version"]
+
+
+def test_a_folder_that_takes_no_files_is_reported_with_the_file_asked_for(tmp_path, monkeypatch):
+    """The temporary file beside the target is an implementation detail: a failure to create it
+    names the target (what the user wrote on the command line), with the system's reason."""
+    import errno
+    import tempfile
+
+    from nca_qd.io import atomic_write_text
+
+    def refuse(**kwargs):
+        raise PermissionError(errno.EACCES, "Permission denied", f"{kwargs['dir']}/.x.tmp")
+
+    monkeypatch.setattr(tempfile, "mkstemp", refuse)
+    target = tmp_path / "out.json"
+    with pytest.raises(PermissionError) as exc:
+        atomic_write_text(target, "{}")
+    assert exc.value.filename == str(target) and exc.value.strerror == "Permission denied"
+    assert list(tmp_path.iterdir()) == []

@@ -11,7 +11,7 @@ import math
 from collections.abc import Mapping, Sequence
 from typing import Any, NamedTuple
 
-from nca_qd.errors import NcaQdError
+from nca_qd.errors import NcaQdError, require_bool
 from nca_qd.evaluation.agents import agent_range, positive_ints, scaled_agents
 from nca_qd.evaluation.records import EvalLayout, Request, full_shape, parse_size, size_map, size_str
 from nca_qd.layouts import get_layout
@@ -66,12 +66,8 @@ def validated(ecfg: Mapping[str, Any]) -> dict[str, Any]:
         raise NcaQdError(f"exact.time_limit_s must be a positive number or null, got {tl!r}")
     e["repair"] = dict(e.get("repair") or {})
     for part in ("exact", "screen", "repair"):
-        reuse = e[part].setdefault("reuse", True)
-        if not isinstance(reuse, bool):
-            raise NcaQdError(f"{part}.reuse must be true or false, got {reuse!r}")
-    prune = e.setdefault("prune_records", True)
-    if not isinstance(prune, bool):
-        raise NcaQdError(f"prune_records must be true or false, got {prune!r}")
+        require_bool(f"{part}.reuse", e[part].setdefault("reuse", True))
+    require_bool("prune_records", e.setdefault("prune_records", True))
     e["records_from"] = records_from(e.get("records_from"))
     from nca_qd.sim.rhcr import planner_options
 
@@ -157,12 +153,12 @@ class Plan:
 
         self.e, self.d, self.name, self.scales = e, d, name, scales
         self.T, self.seed = int(e["T"]), int(e["seed"])
-        self.tasks_smooth, self.progress = int(e["tasks_smooth"]), bool(e["progress"])
+        self.tasks_smooth, self.progress = int(e["tasks_smooth"]), require_bool("progress", e["progress"])
         sel = e["select"]
         self.select = SelectSettings(str(sel["by"]), int(sel["pool"]), int(sel["runs"]), int(sel["T"]))
         self.elites = e["elites"]  # a count, or a list of cells
-        self.human_baseline = bool(e["baselines"]["human"])
-        self.tiling_baseline = bool(e["baselines"]["tiling"])
+        self.human_baseline = require_bool("baselines.human", e["baselines"]["human"])
+        self.tiling_baseline = require_bool("baselines.tiling", e["baselines"]["tiling"])
         self.tiling_from = str(e["baselines"].get("tiling_from", "repaired"))
         if self.tiling_from not in ("repaired", "unrepaired"):
             raise NcaQdError(
@@ -201,7 +197,7 @@ class Plan:
             if len(s) != 2:
                 raise NcaQdError(f"sizes.shapes entries must be [rows, cols], got {list(s)}")
         curve = list(extra)
-        if sz["include_main"]:
+        if require_bool("sizes.include_main", sz["include_main"]):
             curve = [self.s_train, *curve, self.s_eval]
         self.curve = list(dict.fromkeys(curve))  # map sizes on the "more sizes" curve
         self.extra = [s for s in dict.fromkeys(extra) if s not in (self.s_train, self.s_eval)]

@@ -51,7 +51,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from nca_qd.errors import NcaQdError
+from nca_qd.errors import NcaQdError, require_bool
 from nca_qd.interfaces import CompactEmitter
 from nca_qd.io import atomic_write_bytes
 from nca_qd.qd.archive import ThresholdRepertoire, grid_cell_indices
@@ -73,8 +73,7 @@ class CheckpointPolicy:
     exact_elites: int | None = None  # None: every result elite float32
 
     def __post_init__(self):
-        if not isinstance(self.exact, bool):
-            raise NcaQdError(f"checkpoint exact must be true or false, got {self.exact!r}")
+        require_bool("checkpoint exact", self.exact)
         if self.restart_dtype not in ("int8", "float16", "float32"):
             raise NcaQdError(
                 f"checkpoint restart_dtype must be int8, float16 or float32, got {self.restart_dtype!r}"

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 from multiprocessing.connection import wait as wait_for_sentinels
 from typing import Any
 
-from nca_qd.errors import NcaQdError
+from nca_qd.errors import NcaQdError, require_bool
 
 log = logging.getLogger(__name__)
 
@@ -246,7 +246,7 @@ def make_backend(cfg: Mapping[str, Any] | None) -> Backend:
         try:
             return DaskBackend(str(scheduler), retries, float(cfg.get("connect_timeout_s", 10)))
         except NcaQdError as exc:
-            if not cfg.get("fallback_local", False):
+            if not require_bool("eval.fallback_local", cfg.get("fallback_local", False)):
                 raise
             log.warning("%s; running locally (eval.fallback_local=true)", exc)
     workers = cfg.get("workers")

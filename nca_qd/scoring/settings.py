@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from nca_qd.errors import NcaQdError
+from nca_qd.errors import NcaQdError, require_bool
 from nca_qd.sim.free_flow import CONGESTED_MODEL
 from nca_qd.sim.rhcr import planner_options
 
@@ -60,8 +60,8 @@ class ScoringConfig:
                 f"eval.screen_estimate must be one of {', '.join(SCREEN_ESTIMATES)}, got {estimate!r}"
             )
         for name in ("screen", "screen_empty_cells", "memo"):
-            if name in cfg and not isinstance(cfg[name], bool):
-                raise NcaQdError(f"eval.{name} must be true or false, got {cfg[name]!r}")
+            if name in cfg:
+                require_bool(f"eval.{name}", cfg[name])
         screen = bool(cfg.get("screen", cls.screen))
         out = cls(
             screen=screen,

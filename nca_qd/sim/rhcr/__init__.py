@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from nca_qd import memory
-from nca_qd.errors import NcaQdError
+from nca_qd.errors import NcaQdError, require_bool
 from nca_qd.sim.result import RunResult
 from nca_qd.sim.scenario import Scenario, build_scenario
 
@@ -292,11 +292,8 @@ def planner_options(cfg: Mapping[str, Any] | None, where: str = "") -> dict[str,
             raise NcaQdError(f"{where}plan_max_expansions must be a positive integer or null, got {work!r}")
         out["plan_max_expansions"] = work
     if "prioritize_start" in cfg:
-        if not isinstance(cfg["prioritize_start"], bool):
-            raise NcaQdError(
-                f"{where}prioritize_start must be true or false, got {cfg['prioritize_start']!r}"
-            )
-        if not cfg["prioritize_start"]:  # (absent for the default: keys of earlier runs stay valid)
+        # (absent for the default: keys of earlier runs stay valid)
+        if not require_bool(f"{where}prioritize_start", cfg["prioritize_start"]):
             out["prioritize_start"] = False
     if "starts" in cfg:
         if cfg["starts"] not in STARTS:
