@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from nca_qd.errors import NcaQdError
-from nca_qd.paper import DSAGE_SETTINGS
+from nca_qd.paper import DSAGE_SETTINGS, MAP_ELITES_SETTINGS
 from nca_qd.paper import QD_EVALUATIONS as PAPER_EVALUATIONS
 from nca_qd.paper import QD_TABLE as PAPER_TABLE
 from nca_qd.run_dir import METRICS_FILE, load_run_config
@@ -79,11 +79,31 @@ def algorithm_label(cfg) -> str:
     label = name if alpha is None else f"{name} α={float(alpha):g}"
     if name == "dsage":
         label += dsage_reduction(cfg)
+    if name == "map_elites":
+        label += map_elites_variant(cfg)
     kind = OmegaConf.select(cfg, "domain.agent.kind", default=None)
     weights = OmegaConf.select(cfg, "domain.agent.weights", default=None)
     if kind is not None and (kind != "learned" or weights not in (None, "")):
         label += f", agent {kind}" + ("" if weights in (None, "") else f" ({Path(str(weights)).name})")
     return label
+
+
+def map_elites_variant(cfg) -> str:
+    """`` (not the paper's: elitist archive, n_initial 100, initial_sigma 0.2)`` for a MAP-Elites
+    run set otherwise than the paper's code ran it (:data:`nca_qd.paper.MAP_ELITES_SETTINGS`,
+    the archive ``algo.archive=auto`` gives its domain), so that its row is its own arm; ""
+    for the paper's."""
+    from omegaconf import OmegaConf
+
+    from nca_qd.qd.loop import map_elites_archive
+
+    archive = map_elites_archive(cfg.algo, cfg.domain)
+    differs = [] if archive == map_elites_archive({"archive": "auto"}, cfg.domain) else [f"{archive} archive"]
+    for key, paper in MAP_ELITES_SETTINGS.items():
+        value = OmegaConf.select(cfg, f"algo.{key}", default=None)
+        if value is not None and float(value) != paper:
+            differs.append(f"{key} {value:g}")
+    return f" (not the paper's: {', '.join(differs)})" if differs else ""
 
 
 def dsage_reduction(cfg) -> str:

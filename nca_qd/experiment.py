@@ -175,7 +175,7 @@ class Experiment:
         self.cfg, self.run_dir = cfg, Path(run_dir)
         self.domain: Domain = make_domain(cfg.domain)
         self.generator = make_generator(self.domain, cfg.algo.name)
-        spec = archive_spec(cfg.algo.name, cfg.domain, cfg.qd)
+        spec = archive_spec(cfg.algo, cfg.domain, cfg.qd)
         self.objective = make_objective(self.domain, self.generator, cfg)
         if cfg.algo.name == "dsage":  # direct search over layouts with a deep surrogate
             from nca_qd.qd.dsage import DSAGELoop

@@ -71,6 +71,12 @@ DSAGE_SETTINGS = {
     "surrogate.sample_size": 20_000,
 }
 
+# MAP-Elites as the paper's code ran it (config/*/MAP-Elites_NCA*.gin, pyribs 0.5.0): no
+# initial solutions, pyribs' IsoLineEmitter drawing x0 = 0 plus iso_sigma noise while the archive
+# is empty; its archive is ``algo.archive=auto``'s choice per domain. A run that differs is
+# another arm, labelled with what differs.
+MAP_ELITES_SETTINGS = {"n_initial": 0, "initial_sigma": 0.01}
+
 # Table 2 (and table 5 for CMA-ES); manufacturing's CMA-MAE row is its "opt" generator.
 SCALING = {
     (WE, "cma_mae α=0"): Scaling(100, (6.79, 0.00), 0, None),

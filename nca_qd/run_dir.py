@@ -60,9 +60,18 @@ def load_run_config(run_dir: str | Path) -> DictConfig:
 
 def migrate(cfg: DictConfig) -> list[str]:
     """Fill in the :data:`LEGACY_SETTINGS` a saved run configuration lacks (in place, only within
-    blocks it has); returns the keys filled. They are all the multi-agent scorer's (screen,
-    exact planner): a maze run's ``eval`` block (workers, retries) gets none."""
+    blocks it has), and a MAP-Elites run's archive and initial spread; returns the keys filled.
+    The legacy settings are all the multi-agent scorer's (screen, exact planner): a maze run's
+    ``eval`` block (workers, retries) gets none."""
     filled: list[str] = []
+    algo = OmegaConf.select(cfg, "algo")
+    if isinstance(algo, DictConfig) and algo.get("name") == "map_elites":
+        # MAP-Elites before it was set as the paper's code ran it (2026-12-01): an elitist
+        # archive, its first solutions drawn from N(0, qd.sigma0^2)
+        for key, value in (("archive", "elitist"), ("initial_sigma", OmegaConf.select(cfg, "qd.sigma0"))):
+            if key not in algo:
+                algo[key] = value
+                filled.append(f"algo.{key}")
     if OmegaConf.select(cfg, "domain.name") == "maze":
         return filled
     for dotted, value in LEGACY_SETTINGS.items():

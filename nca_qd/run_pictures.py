@@ -61,7 +61,7 @@ def draw_archives(
     """``archive_<which>.png``: each archive's objective over its measure grid."""
     from nca_qd import viz
 
-    spec = archive_spec(cfg.algo.name, cfg.domain, cfg.qd)
+    spec = archive_spec(cfg.algo, cfg.domain, cfg.qd)
     names = list(cfg.domain.measures.names)
     written = []
     for which, archive in archives.items():

@@ -96,3 +96,75 @@ def test_host_linear_algebra_gives_the_same_bits_whatever_the_blas_threads():
     np.testing.assert_array_equal(d2, d1.astype(np.float32))
     np.testing.assert_array_equal(b2, b1.astype(np.float32))
     np.testing.assert_array_equal(b3, b1)
+
+
+# ------------------------------------------------------------- MAP-Elites as the paper ran it
+def test_map_elites_gets_the_archive_the_papers_code_ran_in_each_domain():
+    """The paper's warehouse and manufacturing MAP-Elites configs set ``Manager.is_cma_mae =
+    True`` with ``GridArchive.learning_rate = 0.01, threshold_min = 0``: parents come from
+    CMA-MAE's soft archive. Its maze configs set ``is_cma_mae = False``: an elitist archive."""
+    from experiments.cli import compose_config
+    from nca_qd.errors import NcaQdError
+    from nca_qd.qd.loop import archive_spec
+
+    def spec(*overrides):
+        cfg = compose_config("run", ["algo=map_elites", *overrides])
+        return archive_spec(cfg.algo, cfg.domain, cfg.qd)
+
+    for domain in ("warehouse_even", "warehouse_uneven", "manufacturing"):
+        s = spec(f"domain={domain}")
+        assert (s.learning_rate, s.threshold_min) == (0.01, 0.0), domain
+    for domain in ("maze", "maze_entropy"):
+        s = spec(f"domain={domain}")
+        assert (s.learning_rate, s.threshold_min) == (1.0, -np.inf), domain
+    s = spec("domain=warehouse_even", "algo.archive=elitist")
+    assert (s.learning_rate, s.threshold_min) == (1.0, -np.inf)
+    s = spec("domain=maze", "algo.archive=threshold", "qd.archive.learning_rate=0.5")
+    assert (s.learning_rate, s.threshold_min) == (0.5, 0.0)
+    cfg = compose_config("run", ["domain=warehouse_even", "algo=cma_es"])  # the other baseline
+    assert archive_spec(cfg.algo, cfg.domain, cfg.qd).learning_rate == 1.0
+    with pytest.raises(NcaQdError, match="algo.archive must be one of auto, elitist, threshold, got 'soft'"):
+        spec("domain=warehouse_even", "algo.archive=soft")
+
+
+def test_map_elites_starts_near_x0_until_the_archive_holds_an_elite():
+    """pyribs' IsoLineEmitter with no initial solutions: x0 = 0 plus iso_sigma noise while the
+    archive is empty, then Iso+LineDD around elites; ``n_initial`` random draws come first."""
+    from nca_qd.qd.archive import ThresholdRepertoire
+
+    archive = ThresholdRepertoire.create(100, [10, 10], [[-1.0, 1.0], [-1.0, 1.0]])
+    key = jax.random.PRNGKey(0)
+    em = IsoLineEmitter(200, 100, 0.01, 0.01, 0.2, 0)
+    first, state = em.ask(em.init(key), archive, key)
+    assert 0.009 < float(np.std(np.asarray(first))) < 0.011
+    elite = np.full((1, 100), 3.0, np.float32)
+    archive, _ = archive.add_with_info(jax.numpy.asarray(elite), jax.numpy.zeros((1, 2)), jax.numpy.ones(1))
+    varied, _ = em.ask(state, archive, key)
+    assert np.allclose(np.asarray(varied).mean(), 3.0, atol=0.01)  # one elite: parents all it
+    random_first = IsoLineEmitter(200, 100, 0.2, 0.01, 0.2, 400)  # two batches of N(0, 0.2^2)
+    drawn, _ = random_first.ask(random_first.init(key), archive, key)
+    assert 0.19 < float(np.std(np.asarray(drawn))) < 0.21
+
+
+def test_a_map_elites_run_saved_before_the_papers_settings_resumes_as_it_ran(tmp_path):
+    """A saved MAP-Elites configuration without ``algo.archive`` / ``algo.initial_sigma`` ran
+    an elitist archive and drew its first solutions from N(0, qd.sigma0^2): it is read so."""
+    from omegaconf import OmegaConf
+
+    from experiments.cli import compose_config
+    from nca_qd.compare import algorithm_label
+    from nca_qd.qd.loop import archive_spec
+    from nca_qd.run_dir import load_run_config
+
+    cfg = compose_config("run", ["domain=warehouse_even", "algo=map_elites", "alpha=5", "algo.n_initial=100"])
+    saved = OmegaConf.to_container(cfg)
+    del saved["algo"]["archive"], saved["algo"]["initial_sigma"]
+    (tmp_path / "config.yaml").write_text(OmegaConf.to_yaml(saved))
+    old = load_run_config(tmp_path)
+    assert (old.algo.archive, old.algo.initial_sigma) == ("elitist", 0.2)
+    assert archive_spec(old.algo, old.domain, old.qd).learning_rate == 1.0
+    assert algorithm_label(old) == (
+        "map_elites α=5 (not the paper's: elitist archive, n_initial 100, initial_sigma 0.2)"
+    )
+    new = compose_config("run", ["domain=warehouse_even", "algo=map_elites", "alpha=5"])
+    assert algorithm_label(new) == "map_elites α=5"

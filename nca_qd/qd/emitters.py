@@ -334,14 +334,22 @@ class IsoLineState(flax.struct.PyTreeNode):
 class IsoLineEmitter:
     """MAP-Elites: parents drawn uniformly from the archive, QDax's Iso+LineDD variation.
 
-    Until ``n_initial`` solutions have been emitted (or while the archive is empty), solutions
-    are drawn from N(0, sigma0^2 I) instead.
+    Until ``n_initial`` solutions have been emitted (and always while the archive is empty),
+    solutions are drawn from N(0, initial_sigma^2 I) instead: with ``n_initial = 0`` and
+    ``initial_sigma = iso_sigma`` this is pyribs' ``IsoLineEmitter`` with ``x0 = 0``, as the
+    paper's code ran it.
     """
 
     def __init__(
-        self, batch_size: int, dim: int, sigma0: float, iso_sigma: float, line_sigma: float, n_initial: int
+        self,
+        batch_size: int,
+        dim: int,
+        initial_sigma: float,
+        iso_sigma: float,
+        line_sigma: float,
+        n_initial: int,
     ):
-        self.batch_size, self.dim, self.sigma0 = batch_size, dim, sigma0
+        self.batch_size, self.dim, self.initial_sigma = batch_size, dim, initial_sigma
         self.iso_sigma, self.line_sigma, self.n_initial = iso_sigma, line_sigma, n_initial
 
     def init(self, key: jax.Array) -> IsoLineState:
@@ -352,7 +360,7 @@ class IsoLineEmitter:
         x1 = sample_elites(archive, k1, self.batch_size)
         x2 = sample_elites(archive, k2, self.batch_size)
         varied = isoline_variation(x1, x2, k3, self.iso_sigma, self.line_sigma)
-        random = self.sigma0 * jax.random.normal(k4, (self.batch_size, self.dim))
+        random = self.initial_sigma * jax.random.normal(k4, (self.batch_size, self.dim))
         use_random = (state.asked < self.n_initial) | ~jnp.any(archive.occupied)
         sol = jnp.where(use_random, random, varied)
         return sol, state.replace(asked=state.asked + self.batch_size)

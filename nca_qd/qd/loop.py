@@ -200,7 +200,7 @@ def make_emitter(algo_cfg: Any, qd_cfg: Any, dim: int):
         return IsoLineEmitter(
             n * b,
             dim,
-            sigma0,
+            float(algo_cfg["initial_sigma"]),
             float(algo_cfg["iso_sigma"]),
             float(algo_cfg["line_sigma"]),
             int(algo_cfg["n_initial"]),
@@ -208,10 +208,31 @@ def make_emitter(algo_cfg: Any, qd_cfg: Any, dim: int):
     raise NcaQdError(f"unknown algorithm {name!r} (known: cma_mae, map_elites, cma_es, dsage)")
 
 
-def archive_spec(algo_name: str, domain_cfg: Any, qd_cfg: Any) -> ArchiveSpec:
-    """CMA-MAE uses the configured learning rate and threshold_min; the baselines a plain archive."""
+MAP_ELITES_ARCHIVES = ("auto", "elitist", "threshold")
+
+
+def map_elites_archive(algo_cfg: Any, domain_cfg: Any) -> str:
+    """MAP-Elites' optimisation archive, ``elitist`` or ``threshold``: ``algo.archive``, where
+    ``auto`` is what the paper's code ran in the domain (a threshold archive, CMA-MAE's, in the
+    warehouse and manufacturing domains; an elitist one for the maze)."""
+    from nca_qd.errors import NcaQdError
+
+    kind = algo_cfg.get("archive")
+    if kind not in MAP_ELITES_ARCHIVES:
+        raise NcaQdError(f"algo.archive must be one of {', '.join(MAP_ELITES_ARCHIVES)}, got {kind!r}")
+    if kind == "auto":
+        return "elitist" if str(domain_cfg["name"]) == "maze" else "threshold"
+    return str(kind)
+
+
+def archive_spec(algo_cfg: Any, domain_cfg: Any, qd_cfg: Any) -> ArchiveSpec:
+    """CMA-MAE, and MAP-Elites with a threshold archive (:func:`map_elites_archive`), use the
+    configured learning rate and threshold_min; the other baselines a plain archive."""
     meas = domain_cfg["measures"]
-    soft = algo_name == "cma_mae"
+    name = algo_cfg["name"]
+    soft = name == "cma_mae" or (
+        name == "map_elites" and map_elites_archive(algo_cfg, domain_cfg) == "threshold"
+    )
     return ArchiveSpec(
         cells=[int(c) for c in meas["cells"]],
         ranges=[[float(r[0]), float(r[1])] for r in meas["ranges"]],
