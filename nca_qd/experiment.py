@@ -159,6 +159,15 @@ def validate_config(cfg: DictConfig) -> None:
             or not all(isinstance(s, int) and not isinstance(s, bool) and s > 1 for s in size)
         ):
             raise NcaQdError(f"domain.size.{which} must be two integers > 1, got {size!r}")
+    if OmegaConf.select(cfg, "algo.name") == "map_elites":
+        positive_float("algo.initial_sigma")
+        for path in ("algo.iso_sigma", "algo.line_sigma"):
+            value = OmegaConf.select(cfg, path)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or value < 0:
+                raise NcaQdError(f"{path} must be a number >= 0, got {value!r}")
+        n_initial = OmegaConf.select(cfg, "algo.n_initial")
+        if isinstance(n_initial, bool) or not isinstance(n_initial, int) or n_initial < 0:
+            raise NcaQdError(f"algo.n_initial must be an integer >= 0, got {n_initial!r}")
     for path in ("qd.progress", "output.pictures", "output.repaired"):
         if OmegaConf.select(cfg, path) is not None:
             require_bool(path, OmegaConf.select(cfg, path))

@@ -161,6 +161,10 @@ def _cli_here(args, capsys, monkeypatch):
         (["qd.checkpoint_seconds=0"], "qd.checkpoint_seconds must be a positive number"),
         (["qd.checkpoint_every=0"], "qd.checkpoint_every must be a positive integer"),
         (["leg_seconds=soon"], "leg_seconds must be a positive number of seconds or null"),
+        (["algo=map_elites", "algo.initial_sigma=abc"], "algo.initial_sigma must be a positive number"),
+        (["algo=map_elites", "algo.n_initial=-5"], "algo.n_initial must be an integer >= 0, got -5"),
+        (["algo=map_elites", "algo.line_sigma=-0.1"], "algo.line_sigma must be a number >= 0"),
+        (["algo=map_elites", "algo.archive=soft"], "algo.archive must be one of auto, elitist, threshold"),
     ],
 )
 def test_bad_input_gets_one_line_and_exit_2(args, message, capsys, monkeypatch):
