@@ -21,7 +21,12 @@ from pathlib import Path
 import numpy as np
 
 from nca_qd.errors import NcaQdError
-from nca_qd.paper import DSAGE_SETTINGS, MAP_ELITES_SETTINGS
+from nca_qd.paper import (
+    DSAGE_MULTI_AGENT_PARTS,
+    DSAGE_MULTI_AGENT_SETTINGS,
+    DSAGE_SETTINGS,
+    MAP_ELITES_SETTINGS,
+)
 from nca_qd.paper import QD_EVALUATIONS as PAPER_EVALUATIONS
 from nca_qd.paper import QD_TABLE as PAPER_TABLE
 from nca_qd.run_dir import METRICS_FILE, load_run_config
@@ -78,7 +83,7 @@ def algorithm_label(cfg) -> str:
     name = str(cfg.algo.name)
     label = name if alpha is None else f"{name} α={float(alpha):g}"
     if name == "dsage":
-        label += dsage_reduction(cfg)
+        label += dsage_variant(cfg)
     if name == "map_elites":
         label += map_elites_variant(cfg)
     kind = OmegaConf.select(cfg, "domain.agent.kind", default=None)
@@ -106,17 +111,33 @@ def map_elites_variant(cfg) -> str:
     return f" (not the paper's: {', '.join(differs)})" if differs else ""
 
 
-def dsage_reduction(cfg) -> str:
-    """`` (reduced: surrogate.epochs 20, …)`` for a DSAGE run below DSAGE's own settings
-    (:data:`nca_qd.paper.DSAGE_SETTINGS`; a CPU run at the paper's settings costs hours per
-    outer iteration), so that its row is its own arm and says what it left out; "" otherwise."""
+def dsage_variant(cfg) -> str:
+    """What sets a DSAGE run apart from the paper's DSAGE row of its domain, so that its row is
+    its own arm: in the maze, `` (reduced: surrogate.epochs 20 of 200, …)`` for settings below
+    DSAGE's public ones (:data:`nca_qd.paper.DSAGE_SETTINGS`; a CPU run at them costs hours per
+    outer iteration), beside the paper's row; in the warehouse and manufacturing domains, whose
+    paper DSAGE has parts this one lacks (:data:`nca_qd.paper.DSAGE_MULTI_AGENT_PARTS`), always
+    `` (not the paper's: lacks <parts>; inner.batch_size 30 for 10, …)`` with no paper row beside it;
+    "" for a maze run at DSAGE's settings."""
     from omegaconf import OmegaConf
 
-    cut = []
-    for key, full in DSAGE_SETTINGS.items():
-        value = OmegaConf.select(cfg, f"algo.{key}", default=None)
-        if value is not None and float(value) < full:
-            cut.append(f"{key} {value:,} of {full:,}")
+    def value(key):
+        return OmegaConf.select(cfg, f"algo.{key}", default=None)
+
+    domain = str(OmegaConf.select(cfg, "domain.name", default="maze"))
+    if not domain.startswith("maze"):
+        differs = [
+            f"{key} {value(key):,} for {paper:,}"
+            for key, paper in DSAGE_MULTI_AGENT_SETTINGS.items()
+            if value(key) is not None and float(value(key)) != paper
+        ]
+        missing = "lacks " + ", ".join(DSAGE_MULTI_AGENT_PARTS)
+        return f" (not the paper's: {'; '.join([missing, *([', '.join(differs)] if differs else [])])})"
+    cut = [
+        f"{key} {value(key):,} of {full:,}"
+        for key, full in DSAGE_SETTINGS.items()
+        if value(key) is not None and float(value(key)) < full
+    ]
     return f" (reduced: {', '.join(cut)})" if cut else ""
 
 

@@ -77,6 +77,26 @@ DSAGE_SETTINGS = {
 # another arm, labelled with what differs.
 MAP_ELITES_SETTINGS = {"n_initial": 0, "initial_sigma": 0.01}
 
+# DSAGE as the paper's code ran it in the warehouse and manufacturing domains
+# (config/warehouse/{even,uneven}/DSAGE_a=5.gin, config/manufacture/DSAGE_a=5.gin), which is not
+# the maze's DSAGE above: other settings, and three parts this repository's DSAGE does not have
+# (its MapElitesBaseline*Emitter keeps every layout at N_s shelves and mutates a geometric
+# number of tiles, p = 0.5; its surrogate first predicts the repaired layout,
+# *AugResnetRepairedMapAndOccupancy). A DSAGE run here in those domains is another arm.
+DSAGE_MULTI_AGENT_SETTINGS = {
+    "inner.iterations": 10_000,
+    "inner.batch_size": 10,
+    "inner.initial_population": 20,
+    "surrogate.epochs": 20,
+    "surrogate.features": 64,
+    "surrogate.sample_size": 20_000,
+}
+DSAGE_MULTI_AGENT_PARTS = (
+    "the mutation that keeps N_s shelves",
+    "the geometric mutation count",
+    "the surrogate of the repaired layout",
+)
+
 # Table 2 (and table 5 for CMA-ES); manufacturing's CMA-MAE row is its "opt" generator.
 SCALING = {
     (WE, "cma_mae α=0"): Scaling(100, (6.79, 0.00), 0, None),

@@ -152,6 +152,26 @@ def test_a_reduced_dsage_is_its_own_arm_and_says_what_it_cut(tmp_path):
     assert rows["dsage"].endswith("| 1,444.20 ± 52.60 / 0.09 ± 0.00 |")
 
 
+def test_a_warehouse_dsage_is_never_the_papers_row(tmp_path):
+    """The paper's warehouse and manufacturing DSAGE (config/warehouse/*/DSAGE_a=5.gin) is not
+    the maze's: a DSAGE run here in those domains says what it lacks and which settings differ,
+    and gets no paper row (the paper's 914.60 would be set beside another algorithm)."""
+    path = tmp_path / "w"
+    path.mkdir()
+    (path / "config.yaml").write_text(
+        "seed: 0\nalgo:\n  name: dsage\n  inner:\n    iterations: 10000\n    batch_size: 30\n"
+        "    initial_population: 20\n  surrogate:\n    epochs: 20\n"
+        "domain:\n  name: warehouse_even\n  alpha: 5\n  measures:\n    names: [entropy, shelf_components]\n"
+    )
+    (path / "metrics.csv").write_text("iteration,evaluations,qd_score,coverage\n1,10000,900,0.02\n")
+    table, _ = compare([path], tmp_path / "out")
+    (row,) = [r for r in table.splitlines() if r.startswith("| warehouse_even")]
+    label = row.split(" | ")[1]
+    assert label.startswith("dsage α=5 (not the paper's: lacks the mutation that keeps N_s shelves")
+    assert label.endswith("the surrogate of the repaired layout; inner.batch_size 30 for 10)")
+    assert "914.60" not in row and row.endswith("| — |")
+
+
 SUMMARY_HEAD = (
     "domain,size,which,n_agents,layout,kind,cell,gen_seconds,repair_status,repair_seconds,similarity,hamming,"
     "simulator,runs,completed,timed_out,errors,success_rate,throughput_success_mean,throughput_success_se,"
