@@ -14,9 +14,12 @@ its own ``evaluate_arms: {arm: [overrides]}``, if any), and the comparison's tab
 arm's ``evaluation/summary.csv``. The other arms' evaluation records serve an arm's identical
 runs (``records_from``: the human baselines are simulated once for the whole comparison). An
 arm evaluated before the plan's evaluate overrides changed is evaluated again (its records
-serve what did not change). An
-evaluation cut by the call's time keeps its finished runs (``evaluation/*.jsonl``) and the next
-call goes on from them.
+serve what did not change). An evaluation cut by the call's time keeps its finished runs
+(``evaluation/*.jsonl``) and the next call goes on from them. Where the plan names
+``evaluate_also: {tag: [overrides]}``, once every arm has finished and been evaluated, each arm is
+evaluated again into ``<root>/<arm>/evaluation_<tag>`` with its evaluate overrides followed by
+the tag's (the same protocol with some settings changed: ``experiments.compare`` sets their
+S_eval rows beside the main evaluation's), drawing on the main evaluation's records.
 Exit 0 when every arm has finished (and been evaluated), 75 when the time ran out first (call
 again; commit the arms' folders between calls to carry them to another machine). Bad input: one
 line, exit 2.
@@ -30,7 +33,7 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
@@ -57,11 +60,25 @@ def _overrides(path: Path, what: str, overrides: Any) -> list[str]:
     return [str(o) for o in overrides]
 
 
-def load_plan(name: str) -> tuple[Path, list[str], dict[str, list[str]], dict[str, list[str]] | None]:
-    """``(root, common overrides, {arm: overrides}, {arm: evaluate overrides} or None)`` of a
-    plan, checked. An arm's evaluate overrides are the plan's ``evaluate:`` followed by its own
-    ``evaluate_arms: {arm: [...]}``, if any (an arm that needs less of the protocol: the
-    comparison's curves are the α arms')."""
+class Plan(NamedTuple):
+    """A campaign plan, checked: its root folder, the overrides common to every arm, each arm's,
+    each arm's evaluate overrides (None: the arms are not evaluated) and the other evaluations
+    (``evaluate_also``: tag -> overrides added to each arm's evaluate overrides)."""
+
+    root: Path
+    common: list[str]
+    arms: dict[str, list[str]]
+    evaluate: dict[str, list[str]] | None
+    also: dict[str, list[str]]
+
+
+TAG_CHARS = set("abcdefghijklmnopqrstuvwxyz0123456789_")
+
+
+def load_plan(name: str) -> Plan:
+    """The plan ``name``, checked. An arm's evaluate overrides are the plan's ``evaluate:``
+    followed by its own ``evaluate_arms: {arm: [...]}``, if any (an arm that needs less of the
+    protocol: the comparison's curves are the α arms')."""
     path = Path(name) if name.endswith((".yaml", ".yml")) else CONF_DIR / "campaign" / f"{name}.yaml"
     if not path.is_file():
         raise NcaQdError(f"plan={name}: no such plan ({path})")
@@ -88,15 +105,33 @@ def load_plan(name: str) -> tuple[Path, list[str], dict[str, list[str]], dict[st
             raise NcaQdError(
                 f"{path}: the evaluation's run_dir, out and records_from are the campaign's to set"
             )
-    return Path(str(raw.root)), [str(c) for c in common], arms, evaluate
+    also_raw = raw.get("evaluate_also")
+    also: dict[str, list[str]] = {}
+    if also_raw is not None:
+        if evaluate is None:
+            raise NcaQdError(f"{path}: evaluate_also adds to evaluate: give evaluate: [overrides] too")
+        if not isinstance(also_raw, DictConfig):
+            raise NcaQdError(f"{path}: evaluate_also must map tags to lists of key=value")
+        for tag, overrides in also_raw.items():
+            if not str(tag) or set(str(tag)) - TAG_CHARS:
+                raise NcaQdError(
+                    f"{path}: evaluate_also's tag {tag!r} must be lower-case letters, digits and _"
+                )
+            also[str(tag)] = _overrides(path, f"evaluate_also.{tag}", overrides)
+            if any(o.startswith(("run_dir=", "out=", "records_from=")) for o in also[str(tag)]):
+                raise NcaQdError(
+                    f"{path}: the evaluation's run_dir, out and records_from are the campaign's to set"
+                )
+    return Plan(Path(str(raw.root)), [str(c) for c in common], arms, evaluate, also)
 
 
-def evaluated(run_dir: Path, overrides: list[str] | None = None) -> bool:
-    """Whether an arm's evaluation has finished (it writes summary.csv last) with the plan's
-    ``overrides``: each ``key=value`` as its ``evaluate_config.yaml`` holds it. A plan that asks
-    more of its evaluations later (another key, another value) thus gets its finished arms
-    evaluated again, from their records where the protocol is unchanged."""
-    folder = run_dir / "evaluation"
+def evaluated(run_dir: Path, overrides: list[str] | None = None, folder_name: str = "evaluation") -> bool:
+    """Whether an arm's evaluation (in ``<run_dir>/<folder_name>``) has finished (it writes
+    summary.csv last) with the plan's ``overrides``: each ``key=value`` as its
+    ``evaluate_config.yaml`` holds it. A plan that asks more of its evaluations later (another
+    key, another value) thus gets its finished arms evaluated again, from their records where
+    the protocol is unchanged."""
+    folder = run_dir / folder_name
     if not (folder / "summary.csv").is_file():
         return False
     if not overrides:
@@ -142,27 +177,39 @@ def _deadline(seconds: float | None) -> Iterator[None]:
         signal.signal(signal.SIGALRM, old)
 
 
-def _shared_records(run_dir: Path, arms: list[str]) -> list[str]:
+def _shared_records(run_dir: Path, arms: list[str], folder: str = "evaluation") -> list[str]:
     """``records_from=[...]``: the other ``arms``' evaluation folders (those that exist), whose
     records serve this arm's identical runs: the human baselines are the same layouts at the
-    same seeds in every arm, so they are simulated once for the whole comparison."""
+    same seeds in every arm, so they are simulated once for the whole comparison. For another
+    evaluation (``folder`` other than ``evaluation``) also the arm's own main evaluation and the
+    other arms' folders of the same name."""
+    names = ["evaluation"] if folder == "evaluation" else ["evaluation", folder]
     folders = [
-        str(run_dir.parent / a / "evaluation")
+        str(run_dir.parent / a / name)
+        for name in names
         for a in arms
-        if run_dir.parent / a != run_dir and (run_dir.parent / a / "evaluation").is_dir()
+        if (run_dir.parent / a != run_dir or name != folder) and (run_dir.parent / a / name).is_dir()
     ]
     return [f"records_from=[{','.join(repr(f) for f in folders)}]"] if folders else []
 
 
 def _evaluate(
-    arm: str, run_dir: Path, overrides: list[str], left: float | None, arms: list[str] | None = None
+    arm: str,
+    run_dir: Path,
+    overrides: list[str],
+    left: float | None,
+    arms: list[str] | None = None,
+    folder: str = "evaluation",
 ) -> int:
-    """Evaluate a finished arm within ``left`` seconds (drawing on the other ``arms``'
-    records): 0 when done, 75 when cut."""
-    print(f"{arm}: evaluating ({' '.join(overrides) or 'the defaults'})", flush=True)
+    """Evaluate a finished arm into ``<run_dir>/<folder>`` within ``left`` seconds (drawing on
+    the other ``arms``' records): 0 when done, 75 when cut."""
+    print(f"{arm}: evaluating into {folder} ({' '.join(overrides) or 'the defaults'})", flush=True)
+    out = [] if folder == "evaluation" else [f"out={run_dir / folder}"]
     try:
         with _deadline(left):
-            code = evaluate_main([f"run_dir={run_dir}", *overrides, *_shared_records(run_dir, arms or [])])
+            code = evaluate_main(
+                [f"run_dir={run_dir}", *overrides, *out, *_shared_records(run_dir, arms or [], folder)]
+            )
     except LegEnded:
         print(f"{arm}: evaluation cut by this call's time; its finished runs are kept", flush=True)
         return EXIT_LEG_ENDED
@@ -209,7 +256,8 @@ def main(argv: list[str]) -> int:
         isinstance(budget, bool) or not isinstance(budget, (int, float)) or budget <= 0
     ):
         raise NcaQdError(f"leg_seconds must be a positive number of seconds or null, got {budget!r}")
-    root, common, arms, evaluate = load_plan(str(cfg.plan))
+    plan = load_plan(str(cfg.plan))
+    root, common, arms, evaluate = plan.root, plan.common, plan.arms, plan.evaluate
     if require_bool("status", cfg.status):
         for arm in arms:
             line = _status_line(arm, progress(root / arm))
@@ -220,6 +268,9 @@ def main(argv: list[str]) -> int:
                     line += ", evaluated, not yet with the plan's evaluate settings (next call)"
                 else:
                     line += ", not yet evaluated"
+                for tag, extra in plan.also.items():
+                    done = evaluated(root / arm, [*evaluate[arm], *extra], f"evaluation_{tag}")
+                    line += f"; evaluation_{tag} {'done' if done else 'after every arm'}"
             print(line)
         return 0
     end = None if budget is None else time.monotonic() + float(budget)
@@ -256,6 +307,20 @@ def main(argv: list[str]) -> int:
                 print(f"{arm}: its evaluation is left for the next call")
                 return EXIT_LEG_ENDED
             code = _evaluate(arm, run_dir, evaluate[arm], left, list(arms))
+            if code != 0:
+                return code
+    for tag, extra in plan.also.items():
+        assert evaluate is not None
+        folder = f"evaluation_{tag}"
+        for arm in arms:
+            overrides = [*evaluate[arm], *extra]
+            if evaluated(root / arm, overrides, folder):
+                continue
+            left = None if end is None else end - time.monotonic()
+            if left is not None and left < MIN_LEG_S:
+                print(f"{arm}: its {folder} is left for the next call")
+                return EXIT_LEG_ENDED
+            code = _evaluate(arm, root / arm, overrides, left, list(arms), folder)
             if code != 0:
                 return code
     print(f"every arm of {cfg.plan} has finished" + (" and been evaluated" if evaluate is not None else ""))

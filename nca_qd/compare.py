@@ -337,21 +337,28 @@ def compare(paths: Iterable[str | Path], out: str | Path, name: str = "compariso
         )
     from nca_qd.compare_curves import curves_markdown, read_curves
     from nca_qd.compare_curves import plot_curves as plot_agent_curves
-    from nca_qd.compare_evaluation import read_arms, tables_markdown, write_scaling_csv
+    from nca_qd.compare_evaluation import (
+        read_arms,
+        read_variants,
+        tables_markdown,
+        variants_markdown,
+        write_scaling_csv,
+    )
     from nca_qd.io import atomic_write_text
 
     files = [out / f"{name}.md", out / f"{name}.csv", out / f"{name}.png"]
     runs = [(c.path, c.group[1], c.seed) for c in curves]
     arms = read_arms(runs)
-    table += tables_markdown(arms)
+    variants = read_variants(runs)
+    table += tables_markdown(arms) + variants_markdown(variants, arms)
     agent_curves = read_curves(runs)
     table += curves_markdown(agent_curves, f"{name}_agents.png")
     atomic_write_text(files[0], table)
     write_csv(files[1], summaries)
     plot_curves(files[2], summaries)
-    if arms:
+    if arms or variants:
         files.append(out / f"{name}_evaluation.csv")
-        write_scaling_csv(files[-1], arms)
+        write_scaling_csv(files[-1], arms, variants)
     if agent_curves:
         files.append(out / f"{name}_agents.png")
         plot_agent_curves(files[-1], agent_curves)

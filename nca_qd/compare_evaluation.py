@@ -9,6 +9,12 @@ the same for every arm of a domain: one row per domain, from the first evaluatio
 Over the seeds of an arm each figure is the mean ± s.e. of the seeds' figures; with one seed,
 the success rate counts its runs and the throughput carries the runs' s.e. The number of exact
 runs stands beside each figure: the paper ran 50 (20 for manufacturing at S_eval).
+
+A run's other evaluations (``<run>/evaluation_<tag>/summary.csv``: the same protocol with some
+settings changed, as a campaign plan's ``evaluate_also`` writes them) get a table of their own
+per tag, its S_eval rows beside the main evaluation's and the paper's, headed by the settings
+that differ (:func:`variants_markdown`): e.g. S_eval at the 2,500 shelves of the paper's code
+and released layouts, where the main evaluation keeps table 1's 2,250.
 """
 
 from __future__ import annotations
@@ -24,7 +30,8 @@ import numpy as np
 
 from nca_qd.paper import RUNTIME, SCALING, TILING
 
-SUMMARY = Path("evaluation") / "summary.csv"
+MAIN = "evaluation"
+VARIANT_PREFIX = "evaluation_"
 WHICH = ("train", "eval")  # S, S_eval
 
 
@@ -35,6 +42,7 @@ class Arm:
     domain: str
     algorithm: str
     seeds: dict[int, list[dict[str, str]]] = field(default_factory=dict)
+    folders: dict[int, Path] = field(default_factory=dict)
 
 
 def read_csv(path: Path) -> list[dict[str, str]]:
@@ -43,11 +51,12 @@ def read_csv(path: Path) -> list[dict[str, str]]:
         return list(csv.DictReader(fh))
 
 
-def read_arms(runs: Sequence[tuple[Path, str, int]]) -> list[Arm]:
-    """The arms of the runs (``(run_dir, algorithm label, seed)``) that hold an evaluation."""
+def read_arms(runs: Sequence[tuple[Path, str, int]], folder: str = MAIN) -> list[Arm]:
+    """The arms of the runs (``(run_dir, algorithm label, seed)``) that hold an evaluation in
+    ``<run_dir>/<folder>``."""
     arms: dict[tuple[str, str], Arm] = {}
     for run_dir, algorithm, seed in runs:
-        path = Path(run_dir) / SUMMARY
+        path = Path(run_dir) / folder / "summary.csv"
         if not path.is_file():
             continue
         rows = read_csv(path)
@@ -56,6 +65,7 @@ def read_arms(runs: Sequence[tuple[Path, str, int]]) -> list[Arm]:
         domain = rows[0]["domain"]
         arm = arms.setdefault((domain, algorithm), Arm(domain, algorithm))
         arm.seeds[seed] = rows
+        arm.folders[seed] = path.parent
     return sorted(arms.values(), key=lambda a: (a.domain, a.algorithm))
 
 
@@ -235,6 +245,113 @@ def tables_markdown(arms: Sequence[Arm]) -> str:
     return "\n".join(lines) + "\n"
 
 
+# The evaluation settings an S_eval figure depends on (the run counts stand beside each figure).
+_SETTINGS = (
+    "elites",
+    "select",
+    "seed",
+    "T",
+    "agents",
+    "baselines.tiling_from",
+    "n_shelves",
+    "repair",
+    "exact",
+)
+_NOT_SETTINGS = {
+    "exact.train",
+    "exact.eval",
+    "exact.sweep_train",
+    "exact.sweep_eval",
+    "exact.reuse",
+    "repair.reuse",
+}
+
+
+def read_variants(runs: Sequence[tuple[Path, str, int]]) -> dict[str, list[Arm]]:
+    """The runs' other evaluations by tag: ``<run_dir>/evaluation_<tag>/summary.csv``."""
+    tags = sorted(
+        {
+            p.parent.name[len(VARIANT_PREFIX) :]
+            for run_dir, _, _ in runs
+            for p in Path(run_dir).glob(f"{VARIANT_PREFIX}*/summary.csv")
+        }
+    )
+    return {tag: arms for tag in tags if (arms := read_arms(runs, VARIANT_PREFIX + tag))}
+
+
+def _flat(node: Any, prefix: str = "") -> dict[str, Any]:
+    if isinstance(node, dict):
+        out: dict[str, Any] = {}
+        for k, v in node.items():
+            out.update(_flat(v, f"{prefix}{k}."))
+        return out
+    return {prefix[:-1]: node}
+
+
+def settings_differing(variant: Path, main: Path) -> list[str]:
+    """``key=value (main evaluation: value)`` for each setting an S_eval figure depends on that
+    the evaluation in folder ``variant`` set otherwise than the one in ``main``."""
+    from omegaconf import OmegaConf
+
+    def flat(folder: Path) -> dict[str, Any]:
+        path = folder / "evaluate_config.yaml"
+        if not path.is_file():
+            return {}
+        cfg = _flat(OmegaConf.to_container(OmegaConf.load(path), resolve=True))
+        return {k: v for k, v in cfg.items() if k.startswith(_SETTINGS) and k not in _NOT_SETTINGS}
+
+    a, b = flat(variant), flat(main)
+    return [
+        f"`{k}={a.get(k)}` (main evaluation: `{b.get(k)}`)"
+        for k in sorted(set(a) | set(b))
+        if a.get(k) != b.get(k)
+    ]
+
+
+def variants_markdown(variants: Mapping[str, Sequence[Arm]], main: Sequence[Arm]) -> str:
+    """Per tag, the S_eval rows (best generator, tiling, human) of the runs' other evaluation
+    beside the main evaluation's and the paper's, headed by the settings that differ (from the
+    first seed's ``evaluate_config.yaml`` against its main evaluation's)."""
+    if not variants:
+        return ""
+    main_by = {(a.domain, a.algorithm): a for a in main}
+    lines = [
+        "",
+        "## S_eval in the runs' other evaluations",
+        "",
+        "Each `evaluation_<tag>` folder: the same protocol with the settings named changed (`None`: "
+        "the run's domain setting, e.g. table 1's shelf count). Exact RHCR, as table 2.",
+    ]
+    for tag, arms in variants.items():
+        first = arms[0]
+        seed = sorted(first.folders)[0]
+        differs = settings_differing(first.folders[seed], first.folders[seed].parent / MAIN)
+        lines += [
+            "",
+            f"### `{VARIANT_PREFIX}{tag}`: " + ("; ".join(differs) or "the main evaluation's settings"),
+            "",
+            "| Domain | Layout | Seeds | S_eval (N_a_eval) | Main evaluation: S_eval | Paper: S_eval |",
+            "|---|---|---|---|---|---|",
+        ]
+        main_rows = {
+            (r["domain"], r["layout"]): r
+            for r in scaling_rows(
+                [main_by[(a.domain, a.algorithm)] for a in arms if (a.domain, a.algorithm) in main_by]
+            )
+        }
+        for r in scaling_rows(arms):
+            if not r["runs_eval"]:
+                continue
+            seeds = ",".join(map(str, r["seeds"]))
+            m = main_rows.get((r["domain"], r["layout"]))
+            paper = r["paper"].split(" / ")[-1] if r["paper"] != "—" else "—"
+            lines.append(
+                f"| {r['domain']} | {r['layout']} | {seeds} | {r['text_eval']} "
+                f"| {m['text_eval'] if m else '—'} | {paper} |"
+            )
+    return "\n".join(lines) + "\n"
+
+
 SCALING_COLUMNS = [
     "domain",
     "layout",
@@ -242,12 +359,21 @@ SCALING_COLUMNS = [
     *(f"{k}_{n}{se}" for n in ("s", "eval") for k in ("success", "throughput") for se in ("", "_se")),
     "runs_s",
     "runs_eval",
+    "evaluation",
 ]
 
 
-def write_scaling_csv(path: Path, arms: Sequence[Arm]) -> None:
-    """Tables 2/5 as CSV (the evaluation's own writer: NaN as empty cells, atomic)."""
+def write_scaling_csv(
+    path: Path, arms: Sequence[Arm], variants: Mapping[str, Sequence[Arm]] | None = None
+) -> None:
+    """Tables 2/5 as CSV (the evaluation's own writer: NaN as empty cells, atomic); the rows of
+    the runs' other evaluations after the main one's, ``evaluation`` naming the folder."""
     from nca_qd.evaluation.tables import write_csv
 
-    rows = [{**r, "seeds": " ".join(map(str, r["seeds"]))} for r in scaling_rows(arms)]
+    rows = [{**r, "seeds": " ".join(map(str, r["seeds"])), "evaluation": MAIN} for r in scaling_rows(arms)]
+    for tag, v_arms in (variants or {}).items():
+        rows += [
+            {**r, "seeds": " ".join(map(str, r["seeds"])), "evaluation": VARIANT_PREFIX + tag}
+            for r in scaling_rows(v_arms)
+        ]
     write_csv(path, rows, SCALING_COLUMNS)

@@ -4,6 +4,7 @@ going on where the last stopped."""
 from __future__ import annotations
 
 import csv
+from pathlib import Path
 
 import pytest
 from omegaconf import OmegaConf
@@ -190,7 +191,7 @@ def test_an_arm_may_add_to_the_plans_evaluation(tmp_path):
         "root: x\narms:\n  a: [seed=0]\n  b: [seed=1]\nevaluate: [T=30]\n"
         "evaluate_arms:\n  b: ['sweep.eval.agents=[]', exact.sweep_eval=0]\n"
     )
-    _, _, _, evaluate = campaign.load_plan(str(plan))
+    evaluate = campaign.load_plan(str(plan)).evaluate
     assert evaluate == {"a": ["T=30"], "b": ["T=30", "sweep.eval.agents=[]", "exact.sweep_eval=0"]}
     for bad, match in (
         ("evaluate: [T=30]\nevaluate_arms:\n  c: [T=40]\n", "must map arms of the plan"),
@@ -199,5 +200,61 @@ def test_an_arm_may_add_to_the_plans_evaluation(tmp_path):
         ("evaluate: [T=30]\nevaluate_arms:\n  a: ['records_from=[x]']\n", "records_from are the campaign's"),
     ):
         plan.write_text("root: x\narms:\n  a: [seed=0]\n" + bad)
+        with pytest.raises(NcaQdError, match=match):
+            campaign.load_plan(str(plan))
+
+
+def test_a_plans_other_evaluations_run_after_every_arm_into_their_own_folders(tmp_path, monkeypatch, capsys):
+    """evaluate_also: {tag: [overrides]}: once every arm has finished and been evaluated, each
+    arm is evaluated again into <arm>/evaluation_<tag> with its evaluate overrides and the
+    tag's, drawing on its own main evaluation's records and the other arms'; done once."""
+    from experiments import campaign
+    from experiments.cli import compose_config
+
+    root = tmp_path / "arms"
+    seen: list[list[str]] = []
+
+    def fake_evaluate(argv):
+        seen.append(argv)
+        cfg = compose_config("evaluate", argv)
+        out = Path(cfg.out or Path(cfg.run_dir) / "evaluation")
+        out.mkdir(parents=True, exist_ok=True)
+        OmegaConf.save(cfg, out / "evaluate_config.yaml")
+        (out / "summary.csv").write_text("domain\nwarehouse_even\n")
+        return 0
+
+    for arm in ("a", "b"):
+        (root / arm).mkdir(parents=True)
+        (root / arm / "config.yaml").write_text("qd:\n  n_evals: 10\n")
+        (root / arm / "metrics.csv").write_text("iteration,evaluations,qd_score,coverage\n1,10,5,0.1\n")
+    monkeypatch.setattr(campaign, "evaluate_main", fake_evaluate)
+    plan = tmp_path / "plan.yaml"
+    plan.write_text(
+        f"root: {root}\narms:\n  a: [seed=0]\n  b: [seed=1]\nevaluate: [T=30]\n"
+        "evaluate_also:\n  ns2500: [n_shelves.eval=2500, runs.train=1]\n"
+    )
+    assert campaign.main([f"plan={plan}"]) == 0
+    # the main evaluations first, then the other ones, arm by arm
+    outs = [compose_config("evaluate", argv).out for argv in seen]
+    assert outs == [None, None, str(root / "a" / "evaluation_ns2500"), str(root / "b" / "evaluation_ns2500")]
+    last = compose_config("evaluate", seen[-1])
+    assert last.T == 30 and last.n_shelves.eval == 2500 and last.runs.train == 1
+    assert list(last.records_from) == [
+        str(root / "a" / "evaluation"),
+        str(root / "b" / "evaluation"),
+        str(root / "a" / "evaluation_ns2500"),
+    ]
+    capsys.readouterr()
+    assert campaign.main([f"plan={plan}", "status=true"]) == 0
+    assert capsys.readouterr().out.splitlines()[0].endswith(", evaluated; evaluation_ns2500 done")
+    seen.clear()
+    assert campaign.main([f"plan={plan}"]) == 0 and seen == []  # nothing left
+    for bad, match in (
+        ("evaluate_also:\n  x: [T=1]\n", "adds to evaluate"),
+        ("evaluate: [T=30]\nevaluate_also:\n  Bad-Tag: [T=1]\n", "lower-case letters"),
+        ("evaluate: [T=30]\nevaluate_also:\n  x: [out=elsewhere]\n", "the campaign's to set"),
+        ("evaluate: [T=30]\nevaluate_also: [T=1]\n", "must map tags"),
+    ):
+        plan.write_text(f"root: {root}\narms:\n  a: [seed=0]\n" + bad)
         with pytest.raises(NcaQdError, match=match):
             campaign.load_plan(str(plan))

@@ -238,6 +238,57 @@ def test_arms_with_an_evaluation_get_the_papers_tables_2_and_3(tmp_path):
     assert len(runtime) == 2 and "Δ 0.95" in runtime[0]
 
 
+def test_a_runs_other_evaluation_gets_its_own_s_eval_table(tmp_path):
+    """``<run>/evaluation_<tag>`` (e.g. S_eval at the paper's code's 2,500 shelves): its S_eval
+    rows in a table of their own, headed by the settings that differ from the main evaluation's,
+    beside the main evaluation's figure and the paper's; its rows in the CSV, named."""
+    import csv
+
+    def run(path, seed, main_eval, ns2500_eval):
+        path.mkdir(parents=True)
+        (path / "config.yaml").write_text(
+            f"seed: {seed}\nalpha: 5\nalgo:\n  name: cma_mae\ndomain:\n  name: warehouse_even\n"
+            "  alpha: 5\n  measures:\n    names: [entropy, shelf_components]\n"
+        )
+        (path / "metrics.csv").write_text("iteration,evaluations,qd_score,coverage\n1,10000,20000,0.3\n")
+        for folder, success, shelves, runs in (
+            ("evaluation", main_eval, "null", 50),
+            ("evaluation_ns2500", ns2500_eval, 2500, 20),
+        ):
+            (path / folder).mkdir()
+            (path / folder / "summary.csv").write_text(
+                SUMMARY_HEAD
+                + _summary_row("train", "nca", "rhcr", 1.0, 6.70)
+                + _summary_row("eval", "nca", "rhcr", success, 16.0, runs=runs)
+                + _summary_row("eval", "tiling", "rhcr", success / 2, 15.0, runs=runs)
+            )
+            (path / folder / "evaluate_config.yaml").write_text(
+                f"T: 5000\nruns:\n  eval: {runs}\nexact:\n  eval: {runs}\n  planner: rhcr\n"
+                f"n_shelves:\n  train: null\n  eval: {shelves}\n"
+            )
+
+    run(tmp_path / "s0", 0, 0.9, 0.7)
+    run(tmp_path / "s1", 1, 0.9, 0.8)
+    table, files = compare([tmp_path], tmp_path / "out")
+    part = table.split("## S_eval in the runs' other evaluations")[1]
+    # only the setting that moves the figure is named (not the run counts, which stand in the cells)
+    assert "### `evaluation_ns2500`: `n_shelves.eval=2500` (main evaluation: `None`)\n" in part
+    rows = {r.split(" | ")[1]: r for r in part.splitlines() if r.startswith("| warehouse_even")}
+    assert rows["cma_mae α=5"] == (
+        "| warehouse_even | cma_mae α=5 | 0,1 | 75 ± 5 % (2 seeds × ≥ 20 runs), 16.00 ± 0.00 "
+        "| 90 ± 0 % (2 seeds × ≥ 50 runs), 16.00 ± 0.00 | 90 %, 16.01 ± 0.00 |"
+    )
+    assert rows["tiling of cma_mae α=5"].endswith(
+        "| 45 ± 0 % (2 seeds × ≥ 50 runs), 15.00 ± 0.00 | 0 %, N/A |"
+    )
+    # the table 2 above is still the main evaluation's
+    assert "| 90 ± 0 % (2 seeds × ≥ 50 runs), 16.00 ± 0.00 |" in table.split("## Generation and repair")[0]
+    with (tmp_path / "out" / "comparison_evaluation.csv").open() as fh:
+        by = {(r["layout"], r["evaluation"]): r for r in csv.DictReader(fh)}
+    assert float(by[("cma_mae α=5", "evaluation_ns2500")]["success_eval"]) == 0.75
+    assert float(by[("cma_mae α=5", "evaluation")]["success_eval"]) == 0.9
+
+
 CURVE_HEAD = (
     "layout,kind,cell,size,which,n_agents,simulator,runs,completed,timed_out,errors,success_rate,"
     "throughput_mean,throughput_se,ci95_low,ci95_high,throughput_success_mean,throughput_success_se,"
