@@ -140,8 +140,9 @@ def evaluated(run_dir: Path, overrides: list[str] | None = None, folder_name: st
     if not saved_file.is_file():
         return False
     saved = OmegaConf.to_container(OmegaConf.load(saved_file), resolve=True)
-    for override in overrides:
-        key, _, value = override.lstrip("+").partition("=")
+    # a key given twice (the plan's evaluate, then an arm's or a tag's override) holds its last value
+    last = dict(o.lstrip("+").partition("=")[::2] for o in overrides)
+    for key, value in last.items():
         node: Any = saved
         for part in key.split("."):
             if not isinstance(node, dict) or part not in node:

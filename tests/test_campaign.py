@@ -99,6 +99,10 @@ def test_a_campaign_evaluates_each_finished_arm_with_the_plans_protocol(tmp_path
     assert not campaign.evaluated(run_dir, [*evaluate, "runs.train=3"])
     assert not campaign.evaluated(run_dir, ["sweep.train.exact_agents=[10]"])
     assert not campaign.evaluated(run_dir, ["no.such.key=1"])
+    # a key given twice holds its last value, as on the command line (an arm's own overrides
+    # after the plan's: the MAP-Elites arms' tables-only evaluation)
+    assert campaign.evaluated(run_dir, [*evaluate, "runs.train=3", "runs.train=2"])
+    assert not campaign.evaluated(run_dir, [*evaluate, "runs.train=2", "runs.train=3"])
     longer = ["T=40", *evaluate[1:]]
     plan.write_text(f"root: {tmp_path / 'arms'}\ncommon: {common}\narms:\n  a: {qd}\nevaluate: {longer}\n")
     assert campaign.main([f"plan={plan}", "status=true"]) == 0
