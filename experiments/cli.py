@@ -8,7 +8,9 @@ Hydra traceback) and wrap their body in :func:`main_guard`.
 from __future__ import annotations
 
 import logging
+import os
 import signal
+import stat
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -22,6 +24,7 @@ from nca_qd.errors import NcaQdError
 CONF_DIR = Path(__file__).resolve().parent / "conf"
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
+EXIT_PIPE_CLOSED = 141  # as a shell reports a tool stopped by SIGPIPE
 
 log = logging.getLogger("nca_qd")
 
@@ -174,6 +177,13 @@ def _path_error(exc: OSError) -> str:
     return f"{' -> '.join(paths)}: {reason}" if paths else reason
 
 
+def _stdout_is_pipe() -> bool:
+    try:
+        return stat.S_ISFIFO(os.fstat(sys.stdout.fileno()).st_mode)
+    except (OSError, ValueError):
+        return False
+
+
 def main_guard(body: Callable[[list[str]], int | None], on_interrupt: str = "") -> Callable[[], None]:
     """Run ``body(argv)``; user errors (a map too large for memory among them: the stages
     refuse it from their estimates, nca_qd.memory, and an allocation that fails all the same
@@ -214,6 +224,13 @@ def main_guard(body: Callable[[list[str]], int | None], on_interrupt: str = "") 
         except KeyboardInterrupt:
             print(f"interrupted{': ' + on_interrupt if on_interrupt else ''}", file=sys.stderr)
             sys.exit(EXIT_INTERRUPTED)
+        except BrokenPipeError:
+            if not _stdout_is_pipe():
+                raise
+            # the reader of the output went away (`... status=true | head`): stop quietly, as a
+            # shell tool does, and keep Python's exit-time flush from failing again
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            sys.exit(EXIT_PIPE_CLOSED)
         sys.exit(code or 0)
 
     return wrapped

@@ -45,6 +45,36 @@ def test_a_programming_error_is_not_dressed_as_a_user_error(monkeypatch, capsys)
         main_guard(body)()
 
 
+def test_output_piped_into_a_reader_that_stops_ends_quietly(tmp_path, monkeypatch):
+    """``python -m experiments.campaign … status=true | head -1``: the reader goes away, the
+    command stops at its next line with exit 141 (a shell's SIGPIPE status), no traceback; a
+    broken pipe that is not standard output stays an error with its traceback."""
+    import subprocess
+
+    plan = tmp_path / "plan.yaml"
+    plan.write_text(
+        f"root: {tmp_path / 'arms'}\narms:\n" + "".join(f"  a{i}: [seed={i}]\n" for i in range(5))
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "experiments.campaign", f"plan={plan}", "status=true"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    proc.stdout.close()  # the reader is gone before the first line
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 141 and b"Traceback" not in err and b"BrokenPipe" not in err
+
+    def body(argv):
+        raise BrokenPipeError(32, "Broken pipe")  # e.g. a socket's, while stdout is a terminal
+
+    import experiments.cli
+
+    monkeypatch.setattr(experiments.cli, "_stdout_is_pipe", lambda: False)
+    monkeypatch.setattr(sys, "argv", ["prog"])
+    with pytest.raises(BrokenPipeError):
+        main_guard(body)()
+
+
 def test_a_value_with_an_equals_sign_gets_the_quoting_that_passes_it():
     """The paper's map files are named ``…_a=1.json``; Hydra's grammar stops at the second
     ``=``. The error names the override and its quoted form, which then composes."""
