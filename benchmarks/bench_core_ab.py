@@ -9,13 +9,17 @@ environment imports), alternating the builds ``--rounds`` times, each run in its
   with a fixed seed) at the search's settings (200 agents, T = 1,000, 2,000 PBS nodes a call);
 * ``reference`` cases: the shared reference maps, crowded enough that planning calls fail and
   the best node's repair runs (33x36 warehouse, uneven and manufacturing, and 101x102 with
-  1,400 agents).
+  1,400 agents);
+* ``long`` cases: S_eval as an evaluation runs it (101x102, 1,400 agents, the evaluation's
+  5,000 PBS nodes a call) for longer: the paper's layout, which flows, and the human one,
+  which jams after failed calls.
 
 No CPU-time limit per call (time must not decide anything here). Per run it compares
 throughput, stop time, finished tasks, failed calls, PBS nodes, A* expansions and digests of
 tasks per step, tile visits and nodes per call; then prints whether every run is identical and
 the CPU of each build (the sum over runs of each run's fastest round: the machine's other load
-moves single rounds). Build the other core outside the repository, e.g. from another checkout:
+moves single rounds) and each run's (``per_run``: name, seed, old, new). Build the other core
+outside the repository, e.g. from another checkout:
 
     pip install --no-deps --target /tmp/core_new <other checkout>   # builds its _core
     python -m benchmarks.bench_core_ab --old installed --new /tmp/core_new/nca_qd/sim/rhcr \\
@@ -46,6 +50,12 @@ REFERENCE = [  # (map under the shared reference maps, scenario, agents, T, PBS 
     ("manufacturing/human_33x36.json", "manufacturing", 300, 400, 300),
     ("warehouse/paper_cma-mae_a5_even_101x102.json", "warehouse_even", 1400, 60, 5000),
     ("warehouse/human_101x102.json", "warehouse_even", 1400, 200, 500),
+]
+
+
+LONG = [  # the same, S_eval for longer
+    ("warehouse/paper_cma-mae_a5_even_101x102.json", "warehouse_even", 1400, 1000, 5000),
+    ("warehouse/human_101x102.json", "warehouse_even", 1400, 300, 5000),
 ]
 
 
@@ -89,13 +99,15 @@ def _cases(run_dir: str | None, n_layouts: int, seeds: list[int], which: list[st
                 )
                 for s in seeds
             ]
-    if "reference" in which:
+    for kind, table in (("reference", REFERENCE), ("long", LONG)):
+        if kind not in which:
+            continue
         maps = reference_maps_dir()
-        for path, scenario, agents, T, nodes in REFERENCE:
+        for path, scenario, agents, T, nodes in table:
             rows = load_map(maps / path).rows
             cases += [
                 dict(
-                    name=f"{path} {agents}",
+                    name=f"{path} {agents} T={T}",
                     rows=rows,
                     scenario=scenario,
                     agents=agents,
@@ -146,7 +158,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--run-dir", default="results/warehouse_even_qd/cma_mae_a5_s0", help="memo cases' search")
     p.add_argument("--layouts", type=int, default=8, help="memo layouts drawn")
     p.add_argument("--seeds", default="0", help="comma-separated simulation seeds")
-    p.add_argument("--cases", default="memo,reference", help="memo, reference or both")
+    p.add_argument("--cases", default="memo,reference", help="memo, reference, long (comma-separated)")
     p.add_argument("--rounds", type=int, default=3, help="runs of each build, alternating")
     p.add_argument("--worker", nargs=3, metavar=("BUILD", "CASES", "OUT"), help=argparse.SUPPRESS)
     a = p.parse_args(argv)
@@ -195,6 +207,11 @@ def main(argv: list[str] | None = None) -> int:
                 cpu_old=round(cpu["old"], 2),
                 cpu_new=round(cpu["new"], 2),
                 speedup=round(cpu["old"] / cpu["new"], 3),
+                per_run=[
+                    [r["name"], r["seed"], round(min(rs[i]["cpu"] for rs in runs["old"]), 2)]
+                    + [round(min(rs[i]["cpu"] for rs in runs["new"]), 2)]
+                    for i, r in enumerate(ref)
+                ],
             )
         )
     )

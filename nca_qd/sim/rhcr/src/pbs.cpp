@@ -32,7 +32,7 @@ bool WindowedPBS::near(int a, int b, int reach) const {
 // RHCR's conflict test between two paths within the window: the first vertex conflict or
 // swap in time order. Callers only ask about pairs of nearby_ (others never meet).
 bool WindowedPBS::conflict_between(const Node& n, int a1, int a2, Conflict& c) const {
-  if (!(n.area[a1] & n.area[a2])) return false;
+  if (!(area(n, a1) & area(n, a2))) return false;
   const int* p = path(n, a1);
   const int* q = path(n, a2);
   // Most pairs never meet: rule them out with one branch-free pass (kAbsent cells may match
@@ -154,10 +154,12 @@ bool WindowedPBS::find_path(Node& n, int agent, const std::vector<AgentQuery>& q
   bool ok = astar_.plan(rt_, queries[agent], buf.data(), cost, false);
   if (!ok && prioritize_start_) ok = astar_.plan(rt_, queries[agent], buf.data(), cost, true);
   if (!ok) return false;
-  std::copy(buf.begin(), buf.end(), path(n, agent));
-  n.area[agent] = area_of(buf.data());
-  n.total_cost += cost - n.cost[agent];
-  n.cost[agent] = cost;
+  const int b = new_block();
+  std::copy(buf.begin(), buf.end(), paths_.begin() + static_cast<ptrdiff_t>(b) * (window_ + 1));
+  areas_[b] = area_of(buf.data());
+  costs_[b] = cost;
+  n.total_cost += cost - costs_[n.block[agent]];
+  n.block[agent] = b;
   if (!touched_flag_[agent]) {
     touched_flag_[agent] = 1;
     n.touched.push_back(agent);
@@ -241,17 +243,24 @@ bool WindowedPBS::solve(const std::vector<AgentQuery>& queries, int executed_ste
   build_nearby();
 
   // Root: every agent alone, in id order, avoiding the start cells of those planned before.
+  paths_.clear();
+  areas_.clear();
+  costs_.clear();
+  new_block();  // block 0: no path
+  std::fill(paths_.begin(), paths_.end(), kAbsent);
   std::unique_ptr<Node> root = take_node();
-  root->paths.assign(static_cast<size_t>(n_agents_) * len, kAbsent);
-  root->cost.assign(n_agents_, 0);
-  root->order.reset(n_agents_);
-  root->area.assign(n_agents_, 0);
+  root->block.assign(n_agents_, 0);
+  order_rows_.reset(n_agents_);
+  root->order.reset(n_agents_, order_rows_);
   root->conflicts.clear();
   root->total_cost = 0;
   for (int a = 0; a < n_agents_; ++a)
-    if (!find_path(*root, a, queries, a)) {
-      std::fill(path(*root, a), path(*root, a) + len, queries[a].start);
-      root->area[a] = area_of(path(*root, a));
+    if (!find_path(*root, a, queries, a)) {  // it waits on its start cell (cost 0)
+      const int b = new_block();
+      int* p = paths_.data() + static_cast<size_t>(b) * len;
+      std::fill(p, p + len, queries[a].start);
+      areas_[b] = area_of(p);
+      root->block[a] = b;
     }
   for (int a : root->touched) touched_flag_[a] = 0;
   // Whatever the search still holds when it returns goes back to the pool.
@@ -279,7 +288,7 @@ bool WindowedPBS::solve(const std::vector<AgentQuery>& queries, int executed_ste
     return false;
   }
   if (r.conflicts.empty()) {
-    out.swap(r.paths);
+    gather(r, out);
     return true;
   }
 
@@ -295,7 +304,7 @@ bool WindowedPBS::solve(const std::vector<AgentQuery>& queries, int executed_ste
     std::unique_ptr<Node> node = std::move(stack.back());
     stack.pop_back();
     if (node->conflicts.empty()) {
-      out.swap(node->paths);
+      gather(*node, out);
       recycle(std::move(node));
       return true;
     }
@@ -309,7 +318,7 @@ bool WindowedPBS::solve(const std::vector<AgentQuery>& queries, int executed_ste
     // second its buffers.
     if (!have_best || node->earliest > best.earliest ||
         (node->earliest == best.earliest && node->total_cost < best.total_cost)) {
-      best.paths = node->paths;
+      best.block = node->block;
       best.earliest = node->earliest;
       best.total_cost = node->total_cost;
       have_best = true;
@@ -321,16 +330,11 @@ bool WindowedPBS::solve(const std::vector<AgentQuery>& queries, int executed_ste
       const int higher = k == 0 ? conflict.a2 : conflict.a1;
       std::unique_ptr<Node> child = take_node();
       if (k == 1) {
-        std::swap(child->paths, parent.paths);
-        std::swap(child->cost, parent.cost);
-        std::swap(child->area, parent.area);
+        std::swap(child->block, parent.block);
         std::swap(child->conflicts, parent.conflicts);
         std::swap(child->order, parent.order);
-        child->order.make_room();
       } else {
-        child->paths = parent.paths;
-        child->cost = parent.cost;
-        child->area = parent.area;
+        child->block = parent.block;
         child->conflicts = parent.conflicts;
         child->order.copy_from(parent.order);
       }
@@ -342,7 +346,7 @@ bool WindowedPBS::solve(const std::vector<AgentQuery>& queries, int executed_ste
       }
       ++stats_.nodes_generated;
       if (child->total_cost == min_cost && child->conflicts.empty()) {
-        out.swap(child->paths);
+        gather(*child, out);
         recycle(std::move(child));
         recycle(std::move(children[0]));
         recycle(std::move(node));
@@ -373,18 +377,36 @@ std::unique_ptr<WindowedPBS::Node> WindowedPBS::take_node() {
   if (pool_.empty()) return std::make_unique<Node>();
   std::unique_ptr<Node> node = std::move(pool_.back());
   pool_.pop_back();
+  pool_bytes_ -= node_bytes(*node);
   node->touched.clear();
   node->total_cost = 0;
   node->earliest = 1 << 30;
   return node;
 }
 
+int WindowedPBS::new_block() {
+  const int b = static_cast<int>(costs_.size());
+  paths_.resize(paths_.size() + window_ + 1);
+  areas_.push_back(0);
+  costs_.push_back(0);
+  return b;
+}
+
+void WindowedPBS::gather(const Node& n, std::vector<int>& out) const {
+  const int len = window_ + 1;
+  out.resize(static_cast<size_t>(n_agents_) * len);
+  for (int a = 0; a < n_agents_; ++a)
+    std::copy(path(n, a), path(n, a) + len, out.begin() + static_cast<ptrdiff_t>(a) * len);
+}
+
 void WindowedPBS::recycle(std::unique_ptr<Node> node) {
   // The depth-first stack holds hundreds of nodes when a call ends, and the next call needs as
-  // many again: keep up to kPoolBytes of spare nodes (at 200 agents about 3,000 of them; at
-  // 1,400 agents, whose nodes hold about 0.3 MB each, a hundred or so).
-  const size_t node_bytes = static_cast<size_t>(n_agents_) * (window_ + 1) * sizeof(int) + 1;
-  if (node && pool_.size() < std::max<size_t>(64, kPoolBytes / node_bytes)) pool_.push_back(std::move(node));
+  // many again: keep spare nodes up to kPoolBytes of what they hold.
+  if (!node) return;
+  const size_t bytes = node_bytes(*node);
+  if (pool_bytes_ + bytes > kPoolBytes) return;
+  pool_bytes_ += bytes;
+  pool_.push_back(std::move(node));
 }
 
 // RHCR's LRA* repair of a failed call, plus a swap check: execute `executed_steps` steps of
@@ -396,14 +418,14 @@ void WindowedPBS::repair(const Node& n, const std::vector<AgentQuery>& queries, 
   out.assign(static_cast<size_t>(N) * len, 0);
   std::vector<int> last(N), ptr(N, 1), order(N);
   for (int a = 0; a < N; ++a) {
-    const int* p = n.paths.empty() ? nullptr : path(n, a);
+    const int* p = n.block.empty() ? nullptr : path(n, a);
     int l = 0;
     while (p && l + 1 < len && p[l + 1] != kAbsent) ++l;
     last[a] = p ? l : 0;
     out[a * len] = queries[a].start;
   }
   auto cell_of = [&](int a, int s) {
-    const int* p = n.paths.empty() ? nullptr : path(n, a);
+    const int* p = n.block.empty() ? nullptr : path(n, a);
     return p ? p[std::min(s, last[a])] : queries[a].start;
   };
   std::vector<int> claim(cells, -1), before(cells, -1);

@@ -81,20 +81,30 @@ class WindowedPBS {
     int a1 = -1, a2 = -1, v1 = -1, v2 = -1, t = -1;  // v2 >= 0: swap along (v1, v2)
   };
   struct Node {
-    std::vector<int> paths;                   // n_agents * (window + 1), kAbsent after the end
-    std::vector<int> cost;                    // per agent, from A*
+    // Per agent, its path's block in the call's arena (paths_, areas_, costs_). A child
+    // shares its parent's blocks and a replanned agent gets a new one, so a copy of a node
+    // copies an index per agent, not the agent's path, cost and area (with 1,400 agents those
+    // copies were the planner's largest cost: docs/benchmarks.md, exact simulator).
+    std::vector<int> block;
     PriorityOrder order;                      // who is above whom (priority_order.hpp)
-    // Per agent, the areas its path crosses (one bit per block of an 8 x 8 division of the
-    // map): two paths can only meet where their areas overlap.
-    std::vector<uint64_t> area;
     std::vector<Conflict> conflicts;
     std::vector<int> touched;                 // agents replanned in this node (root: all)
     int64_t total_cost = 0;
     int earliest = 1 << 30;                   // time of the chosen conflict, once expanded
   };
 
-  const int* path(const Node& n, int agent) const { return n.paths.data() + agent * (window_ + 1); }
-  int* path(Node& n, int agent) { return n.paths.data() + agent * (window_ + 1); }
+  // An agent's path in node n (window + 1 cells, kAbsent after its end). The pointer is good
+  // until the next new_block(), which may move the arena.
+  const int* path(const Node& n, int agent) const {
+    return paths_.data() + static_cast<size_t>(n.block[agent]) * (window_ + 1);
+  }
+  // The areas an agent's path crosses (one bit per block of an 8 x 8 division of the map): two
+  // paths can only meet where their areas overlap.
+  uint64_t area(const Node& n, int agent) const { return areas_[n.block[agent]]; }
+  // A new block at the arena's end (path, area and cost to be written): its index.
+  int new_block();
+  // The node's paths as the caller's n_agents * (window + 1) array.
+  void gather(const Node& n, std::vector<int>& out) const;
 
   bool near(int a, int b, int reach) const;
   bool conflict_between(const Node& n, int a1, int a2, Conflict& c) const;
@@ -156,6 +166,18 @@ class WindowedPBS {
   // copies' allocations were a tenth of the planner's time).
   static constexpr size_t kPoolBytes = size_t{32} << 20;
   std::vector<std::unique_ptr<Node>> pool_;
+  // The call's path blocks: block b's path is paths_[b * (window + 1) ...], its area areas_[b],
+  // its A* cost costs_[b]; block 0 is no path (all kAbsent, area 0, cost 0). Emptied at each
+  // call; blocks are only appended, so every node's blocks stay valid through the call.
+  std::vector<int> paths_;
+  std::vector<uint64_t> areas_;
+  std::vector<int> costs_;
+  RowArena order_rows_;  // the nodes' priority orders' rows, likewise (priority_order.hpp)
+  size_t pool_bytes_ = 0;  // what the pool's nodes hold (node_bytes)
+  static size_t node_bytes(const Node& n) {
+    return sizeof(Node) + (n.block.capacity() + n.touched.capacity()) * sizeof(int) +
+           n.conflicts.capacity() * sizeof(Conflict) + n.order.bytes();
+  }
   std::unique_ptr<Node> take_node();
   void recycle(std::unique_ptr<Node> node);
   std::vector<Conflict> fresh_;  // make_consistent's conflicts of the agent just replanned

@@ -1,103 +1,106 @@
 // A PBS node's priority order ("lower below higher" edges) kept as its transitive closure, so
 // that "is h above a?" is one bit test and an agent's reservations are one row scan.
 //
-// Sparse both ways: a bit row only for an agent that has someone above it, a bit column only
-// for an agent that is above someone (few of either in a typical node). row_of[a] is a's row
-// in `rows` (`stride` 64-bit words each) or -1; col_of[h] is h's column (col_agent[c] the agent
-// of column c) or -1. Bit col_of[h] of a's row is set when h is above a, directly or through
-// other agents; row_owner lists the agents that have a row.
+// Sparse and shared: a bit row (bit h set when h is above the agent, directly or through other
+// agents) only for an agent that has someone above it, each row a block of a RowArena that the
+// search's nodes share for the length of one planning call. A child starts with its parent's
+// rows (an index per agent) and a row that an edge changes gets a new block, so a copy of a node
+// costs an index per agent, not its closure. row_of[a] is a's block or -1; row_owner lists the
+// agents that have a row, in the order they got one.
 #pragma once
 
 #include <algorithm>
+#include <cstddef>
 #include <cstdint>
 #include <vector>
 
 namespace rhcr {
 
+// The rows of one planning call: `words` 64-bit words each, only ever appended.
+class RowArena {
+ public:
+  void reset(int n_agents) {
+    words_ = (n_agents + 63) / 64;
+    bits_.clear();
+  }
+  int words() const { return words_; }
+  // A new block, a copy of block `from` (or zeros for -1): its index.
+  int add(int from) {
+    const int b = static_cast<int>(bits_.size() / words_);
+    bits_.resize(bits_.size() + words_, 0);
+    if (from >= 0) std::copy_n(bits_.begin() + static_cast<ptrdiff_t>(from) * words_, words_, row(b));
+    return b;
+  }
+  uint64_t* row(int b) { return bits_.data() + static_cast<size_t>(b) * words_; }
+  const uint64_t* row(int b) const { return bits_.data() + static_cast<size_t>(b) * words_; }
+
+ private:
+  int words_ = 1;
+  std::vector<uint64_t> bits_;
+};
+
 class PriorityOrder {
  public:
-  // No edges among n agents.
-  void reset(int n) {
+  // No edges among n agents, rows in `arena`.
+  void reset(int n, RowArena& arena) {
+    arena_ = &arena;
     row_of_.assign(n, -1);
-    col_of_.assign(n, -1);
-    rows_.clear();
     row_owner_.clear();
-    col_agent_.clear();
-    stride_ = 1;
   }
 
-  // A copy of `other` with room for one more row (add_edge's), reusing this one's buffers.
+  // A copy of `other` (its rows shared), reusing this one's buffers.
   void copy_from(const PriorityOrder& other) {
+    arena_ = other.arena_;
     row_of_ = other.row_of_;
-    col_of_ = other.col_of_;
-    rows_.reserve(other.rows_.size() + other.stride_);
-    rows_.assign(other.rows_.begin(), other.rows_.end());
     row_owner_ = other.row_owner_;
-    col_agent_ = other.col_agent_;
-    stride_ = other.stride_;
   }
 
-  // Room for one more row (add_edge's) without reallocating.
-  void make_room() { rows_.reserve(rows_.size() + stride_); }
+  // Bytes held (the rows are the arena's).
+  size_t bytes() const { return (row_of_.capacity() + row_owner_.capacity()) * sizeof(int); }
 
   // Is `higher` above `lower`?
   bool is_above(int lower, int higher) const {
-    const int r = row_of_[lower], c = col_of_[higher];
-    return r >= 0 && c >= 0 && ((rows_[static_cast<size_t>(r) * stride_ + (c >> 6)] >> (c & 63)) & 1u);
+    const int r = row_of_[lower];
+    return r >= 0 && ((arena_->row(r)[higher >> 6] >> (higher & 63)) & 1u);
   }
 
-  // Calls f(h) for every agent h above `agent`.
+  // Calls f(h) for every agent h above `agent`, in increasing h.
   template <class F>
   void for_each_above(int agent, F&& f) const {
     const int r = row_of_[agent];
     if (r < 0) return;
-    const uint64_t* above = rows_.data() + static_cast<size_t>(r) * stride_;
-    for (int w = 0; w < stride_; ++w)
-      for (uint64_t bits = above[w]; bits; bits &= bits - 1) f(col_agent_[w * 64 + __builtin_ctzll(bits)]);
+    const uint64_t* above = arena_->row(r);
+    for (int w = 0; w < arena_->words(); ++w)
+      for (uint64_t bits = above[w]; bits; bits &= bits - 1) f(w * 64 + __builtin_ctzll(bits));
   }
 
   // Add "lower below higher" and keep the closure: whoever is `lower` or below it is now also
   // below `higher` and everything above `higher`. `scratch` is a caller's buffer.
   void add_edge(int lower, int higher, std::vector<uint64_t>& scratch) {
-    if (col_of_[higher] < 0) {
-      const int c = static_cast<int>(col_agent_.size());
-      col_of_[higher] = c;
-      col_agent_.push_back(higher);
-      if (c >= stride_ * 64) {  // widen every row by one word
-        const int old = stride_++;
-        std::vector<uint64_t> wide(row_owner_.size() * stride_, 0);
-        for (size_t r = 0; r < row_owner_.size(); ++r)
-          std::copy(rows_.begin() + r * old, rows_.begin() + (r + 1) * old, wide.begin() + r * stride_);
-        rows_ = std::move(wide);
-      }
-    }
+    RowArena& arena = *arena_;
+    const int words = arena.words();
     const int rh = row_of_[higher];
     if (rh >= 0)
-      scratch.assign(rows_.begin() + static_cast<size_t>(rh) * stride_, rows_.begin() + static_cast<size_t>(rh + 1) * stride_);
+      scratch.assign(arena.row(rh), arena.row(rh) + words);
     else
-      scratch.assign(stride_, 0);
-    const int ch = col_of_[higher];
-    scratch[ch >> 6] |= uint64_t{1} << (ch & 63);
-    auto merge = [&](int x) {
-      uint64_t* r = rows_.data() + static_cast<size_t>(row_of_[x]) * stride_;
-      for (int w = 0; w < stride_; ++w) r[w] |= scratch[w];
+      scratch.assign(words, 0);
+    scratch[higher >> 6] |= uint64_t{1} << (higher & 63);
+    auto merge = [&](int x) {  // x's row, copied on write, gets scratch's bits
+      const int b = arena.add(row_of_[x]);
+      row_of_[x] = b;
+      uint64_t* r = arena.row(b);
+      for (int w = 0; w < words; ++w) r[w] |= scratch[w];
     };
-    if (col_of_[lower] >= 0)  // else nobody is below `lower`
-      for (int x : row_owner_)
-        if (x != lower && is_above(x, lower)) merge(x);
-    if (row_of_[lower] < 0) {
-      row_of_[lower] = static_cast<int>(row_owner_.size());
-      row_owner_.push_back(lower);
-      rows_.resize(rows_.size() + stride_, 0);
-    }
+    for (int x : row_owner_)
+      if (x != lower && is_above(x, lower)) merge(x);
+    if (row_of_[lower] < 0) row_owner_.push_back(lower);
     merge(lower);
   }
 
  private:
-  std::vector<int> row_of_, col_of_;
-  std::vector<uint64_t> rows_;
-  std::vector<int> row_owner_, col_agent_;
-  int stride_ = 1;
+  RowArena* arena_ = nullptr;
+  std::vector<int> row_of_;
+  std::vector<int> row_owner_;
 };
 
 }  // namespace rhcr
