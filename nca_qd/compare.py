@@ -51,6 +51,8 @@ class NotStarted(NcaQdError):
 
 def read_run(run_dir: str | Path) -> RunCurve:
     """A run directory's curve; one clear error when it is not a run with metrics."""
+    from omegaconf import OmegaConf
+
     run_dir = Path(run_dir)
     cfg = load_run_config(run_dir)
     path = run_dir / METRICS_FILE
@@ -61,11 +63,18 @@ def read_run(run_dir: str | Path) -> RunCurve:
     if not rows:
         raise NotStarted(f"{run_dir}: {METRICS_FILE} has no iterations yet")
     measures = "+".join(cfg.domain.measures.names)
+    evaluations = np.asarray([float(r["evaluations"]) for r in rows])
+    label = algorithm_label(cfg)
+    budget = OmegaConf.select(cfg, "qd.n_evals", default=None)
+    if budget is not None and evaluations[-1] < float(budget):
+        # a search still under way (a campaign's arm between legs) is a row of its own: pooled
+        # with its finished seeds, its figures would pull their mean down
+        label += f" (in progress: seed {int(cfg.seed)}, {evaluations[-1]:,.0f} of {int(budget):,})"
     return RunCurve(
         path=run_dir,
-        group=(f"{cfg.domain.name} ({measures})", algorithm_label(cfg)),
+        group=(f"{cfg.domain.name} ({measures})", label),
         seed=int(cfg.seed),
-        evaluations=np.asarray([float(r["evaluations"]) for r in rows]),
+        evaluations=evaluations,
         values={m: np.asarray([float(r[m]) for r in rows]) for m in METRICS},
     )
 

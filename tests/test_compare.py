@@ -43,6 +43,21 @@ def test_runs_are_grouped_and_summarised_as_mean_and_standard_error(tmp_path):
     assert table.splitlines()[2].endswith("| 6,000.00 | 0.300 | 12,446.80 ± 2,207.08 / 0.30 ± 0.05 |")
 
 
+def test_a_search_under_way_is_a_row_of_its_own(tmp_path):
+    """A run below its budget (qd.n_evals: a campaign's arm between legs) is not pooled with
+    the finished seeds of its arm, whose mean it would pull down; it stands in its own row,
+    named with its seed and progress, without the paper's row beside it."""
+    for seed, rows in ((0, [(50000, 10000, 0.3), (100000, 22000, 0.5)]), (1, [(50000, 9000, 0.25)])):
+        _fake_run(tmp_path / f"s{seed}", "cma_mae", seed, rows)
+        cfg = tmp_path / f"s{seed}" / "config.yaml"
+        cfg.write_text(cfg.read_text() + "qd:\n  n_evals: 100000\n")
+    table, _ = compare([tmp_path], tmp_path / "out")
+    rows = {r.split(" | ")[1]: r for r in table.splitlines() if r.startswith("| maze")}
+    assert sorted(rows) == ["cma_mae", "cma_mae (in progress: seed 1, 50,000 of 100,000)"]
+    assert " 1 (0) | 100,000 | 22,000.00 | 0.500 | 22,299.00" in rows["cma_mae"]
+    assert rows["cma_mae (in progress: seed 1, 50,000 of 100,000)"].endswith("| 9,000.00 | 0.250 | — |")
+
+
 def test_a_curve_is_what_the_archive_held_after_each_iteration(tmp_path):
     _fake_run(tmp_path / "r", "dsage", 3, [(100, 5, 0.05), (864, 40, 0.4)])
     curve = read_run(tmp_path / "r")
