@@ -60,6 +60,13 @@ def _overrides(path: Path, what: str, overrides: Any) -> list[str]:
     return [str(o) for o in overrides]
 
 
+def _not_the_campaigns(path: Path, overrides: list[str]) -> list[str]:
+    """``overrides`` of an evaluation, refused where they set what the campaign sets."""
+    if any(o.startswith(("run_dir=", "out=", "records_from=")) for o in overrides):
+        raise NcaQdError(f"{path}: the evaluation's run_dir, out and records_from are the campaign's to set")
+    return overrides
+
+
 class Plan(NamedTuple):
     """A campaign plan, checked: its root folder, the overrides common to every arm, each arm's,
     each arm's evaluate overrides (None: the arms are not evaluated) and the other evaluations
@@ -101,10 +108,8 @@ def load_plan(name: str) -> Plan:
         shared = _overrides(path, "evaluate", raw.evaluate)
         own = {str(a): _overrides(path, f"evaluate_arms.{a}", o) for a, o in (extra or {}).items()}
         evaluate = {arm: shared + own.get(arm, []) for arm in arms}
-        if any(o.startswith(("run_dir=", "out=", "records_from=")) for e in evaluate.values() for o in e):
-            raise NcaQdError(
-                f"{path}: the evaluation's run_dir, out and records_from are the campaign's to set"
-            )
+        for e in evaluate.values():
+            _not_the_campaigns(path, e)
     also_raw = raw.get("evaluate_also")
     also: dict[str, list[str]] = {}
     if also_raw is not None:
@@ -117,11 +122,7 @@ def load_plan(name: str) -> Plan:
                 raise NcaQdError(
                     f"{path}: evaluate_also's tag {tag!r} must be lower-case letters, digits and _"
                 )
-            also[str(tag)] = _overrides(path, f"evaluate_also.{tag}", overrides)
-            if any(o.startswith(("run_dir=", "out=", "records_from=")) for o in also[str(tag)]):
-                raise NcaQdError(
-                    f"{path}: the evaluation's run_dir, out and records_from are the campaign's to set"
-                )
+            also[str(tag)] = _not_the_campaigns(path, _overrides(path, f"evaluate_also.{tag}", overrides))
     return Plan(Path(str(raw.root)), [str(c) for c in common], arms, evaluate, also)
 
 
