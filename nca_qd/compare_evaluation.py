@@ -333,12 +333,13 @@ def variants_markdown(variants: Mapping[str, Sequence[Arm]], main: Sequence[Arm]
             "| Domain | Layout | Seeds | S_eval (N_a_eval) | Main evaluation: S_eval | Paper: S_eval |",
             "|---|---|---|---|---|---|",
         ]
-        main_rows = {
-            (r["domain"], r["layout"]): r
-            for r in scaling_rows(
-                [main_by[(a.domain, a.algorithm)] for a in arms if (a.domain, a.algorithm) in main_by]
-            )
-        }
+        # the main evaluation's figures over the same seeds as this one's
+        paired = [
+            Arm(ma.domain, ma.algorithm, {s: ma.seeds[s] for s in a.seeds if s in ma.seeds})
+            for a in arms
+            if (ma := main_by.get((a.domain, a.algorithm))) is not None and set(a.seeds) & set(ma.seeds)
+        ]
+        main_rows = {(r["domain"], r["layout"]): r for r in scaling_rows(paired)}
         for r in scaling_rows(arms):
             if not r["runs_eval"]:
                 continue
