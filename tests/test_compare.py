@@ -19,6 +19,16 @@ def _fake_run(path, algo, seed, rows, measures=("n_walls", "path_length")):
     (path / "metrics.csv").write_text("\n".join(lines) + "\n")
 
 
+def _warehouse_run(path, seed, alpha, qd=20000):
+    """A finished CMA-MAE warehouse (even) run: its config and one line of metrics."""
+    path.mkdir(parents=True)
+    (path / "config.yaml").write_text(
+        f"seed: {seed}\nalpha: {alpha}\nalgo:\n  name: cma_mae\ndomain:\n  name: warehouse_even\n"
+        "  alpha: 5\n  measures:\n    names: [entropy, shelf_components]\n"
+    )
+    (path / "metrics.csv").write_text(f"iteration,evaluations,qd_score,coverage\n1,10000,{qd},0.3\n")
+
+
 def test_runs_are_grouped_and_summarised_as_mean_and_standard_error(tmp_path):
     _fake_run(tmp_path / "a0", "cma_mae", 0, [(150, 10, 0.1), (300, 30, 0.3)])
     _fake_run(tmp_path / "a1", "cma_mae", 1, [(150, 20, 0.2), (300, 50, 0.5)])
@@ -96,17 +106,9 @@ def test_arms_that_differ_in_alpha_are_not_pooled(tmp_path):
     """The paper compares CMA-MAE at α = 0, 1 and 5: one group each, and the paper's α = 5 row
     beside the α = 5 arm only (a run saved with alpha: null takes its domain's α)."""
 
-    def run(path, seed, alpha, qd):
-        path.mkdir(parents=True)
-        (path / "config.yaml").write_text(
-            f"seed: {seed}\nalpha: {alpha}\nalgo:\n  name: cma_mae\ndomain:\n  name: warehouse_even\n"
-            "  alpha: 5\n  measures:\n    names: [entropy, shelf_components]\n"
-        )
-        (path / "metrics.csv").write_text(f"iteration,evaluations,qd_score,coverage\n1,10000,{qd},0.3\n")
-
-    run(tmp_path / "a5s0", 0, "null", 20000)
-    run(tmp_path / "a5s1", 1, 5, 21000)
-    run(tmp_path / "a0s0", 0, 0, 9000)
+    _warehouse_run(tmp_path / "a5s0", 0, "null", 20000)
+    _warehouse_run(tmp_path / "a5s1", 1, 5, 21000)
+    _warehouse_run(tmp_path / "a0s0", 0, 0, 9000)
     table, _ = compare([tmp_path], tmp_path / "out")
     rows = [line for line in table.splitlines() if line.startswith("| warehouse_even")]
     assert len(rows) == 2
@@ -208,12 +210,7 @@ def test_arms_with_an_evaluation_get_the_papers_tables_2_and_3(tmp_path):
     seeds beside the paper's row; its tiling baseline; the human layouts once per domain."""
 
     def run(path, seed, alpha, success_eval, thr_eval, evaluated=True):
-        path.mkdir(parents=True)
-        (path / "config.yaml").write_text(
-            f"seed: {seed}\nalpha: {alpha}\nalgo:\n  name: cma_mae\ndomain:\n  name: warehouse_even\n"
-            "  alpha: 5\n  measures:\n    names: [entropy, shelf_components]\n"
-        )
-        (path / "metrics.csv").write_text("iteration,evaluations,qd_score,coverage\n1,10000,20000,0.3\n")
+        _warehouse_run(path, seed, alpha)
         if not evaluated:
             return
         (path / "evaluation").mkdir()
@@ -260,12 +257,7 @@ def test_a_runs_other_evaluation_gets_its_own_s_eval_table(tmp_path):
     import csv
 
     def run(path, seed, main_eval, ns2500_eval=None):
-        path.mkdir(parents=True)
-        (path / "config.yaml").write_text(
-            f"seed: {seed}\nalpha: 5\nalgo:\n  name: cma_mae\ndomain:\n  name: warehouse_even\n"
-            "  alpha: 5\n  measures:\n    names: [entropy, shelf_components]\n"
-        )
-        (path / "metrics.csv").write_text("iteration,evaluations,qd_score,coverage\n1,10000,20000,0.3\n")
+        _warehouse_run(path, seed, 5)
         for folder, success, shelves, runs in (
             ("evaluation", main_eval, "null", 50),
             ("evaluation_ns2500", ns2500_eval, 2500, 20),
@@ -326,12 +318,7 @@ def test_the_curves_over_agents_carry_their_exact_points_and_the_main_counts(tmp
     runs at N_a_eval (summary.csv); the human layout once; arms without curves add nothing."""
 
     def run(path, seed, alpha, curve=True):
-        path.mkdir(parents=True)
-        (path / "config.yaml").write_text(
-            f"seed: {seed}\nalpha: {alpha}\nalgo:\n  name: cma_mae\ndomain:\n  name: warehouse_even\n"
-            "  alpha: 5\n  measures:\n    names: [entropy, shelf_components]\n"
-        )
-        (path / "metrics.csv").write_text("iteration,evaluations,qd_score,coverage\n1,10000,20000,0.3\n")
+        _warehouse_run(path, seed, alpha)
         (path / "evaluation").mkdir()
         (path / "evaluation" / "summary.csv").write_text(
             SUMMARY_HEAD
