@@ -4,8 +4,13 @@
 
 Prints one JSON line per run (seed, throughput, success, stop_time, cpu_seconds, ...) in seed
 order, then a summary line (mean and standard error of throughput over all runs, success
-rate). Simulators are entries of :data:`SIMULATORS`; ``simulator=rhcr`` (default) is the exact
-RHCR simulator, ``simulator=screen`` the JAX screening approximation (all seeds as one vmapped
+rate). ``usage_out=<file.png>`` also draws where the agents were: per tile, the share of
+timesteps (1..stop_time) an agent stood on it, averaged over the runs (divided by each run's own
+length, so that a run stopped by a jam and one that ran to T weigh alike and a jam shows as
+tiles held nearly all the time), with the figures in a ``.csv`` beside it.
+
+Simulators are entries of :data:`SIMULATORS`; ``simulator=rhcr`` (default) is the exact RHCR
+simulator, ``simulator=screen`` the JAX screening approximation (all seeds as one vmapped
 batch); another simulator is one more entry there.
 """
 
@@ -17,6 +22,7 @@ import math
 import os
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
@@ -49,6 +55,11 @@ class RunSettings:
         self.record_paths = cfg.paths_out is not None
         if self.record_paths:
             check_writable(cfg.paths_out, "paths_out")
+        self.usage_out = cfg.get("usage_out")
+        if self.usage_out is not None:
+            if not str(self.usage_out).endswith(".png"):
+                raise NcaQdError(f"usage_out={self.usage_out}: must name a .png file")
+            check_writable(self.usage_out, "usage_out")
         self.rhcr = rhcr_options(cfg)
         self.crowd_mean = screen_crowd_mean(cfg) if cfg.simulator == "screen" else None
 
@@ -138,16 +149,37 @@ def main(argv: list[str]) -> int:
             hint="use fewer threads=, or a smaller map",
         )
 
-    results, recorded = [], {}
+    results, recorded, occupancy = [], {}, []
     for res in simulator(scen, settings, seeds):
         print(json.dumps(res.summary()), flush=True)
         results.append(res.summary())
         if settings.record_paths:
             recorded[res.seed] = res
+        if settings.usage_out is not None:
+            occupancy.append(np.asarray(res.tile_visits, dtype=float) / max(1, res.stop_time))
     print(json.dumps(summarize(results)), flush=True)
     if settings.record_paths:
         _write_paths(str(cfg.paths_out), recorded)
+    if settings.usage_out is not None:
+        usage = (scen, mapfile.rows, settings, results, occupancy)
+        _write_usage(str(settings.usage_out), str(cfg.layout), *usage)
     return 0
+
+
+def _write_usage(
+    path: str, layout: str, scen: Scenario, rows: list[str], s: RunSettings, results: list, occupancy: list
+) -> None:
+    """The tile-usage picture of ``usage_out`` and its ``.csv`` (row, col, tile, occupancy)."""
+    from nca_qd.evaluation.plots import plot_tile_usage
+
+    mean = np.mean(np.stack(occupancy), axis=0)
+    flowed = sum(bool(r["success"]) for r in results)
+    title = f"{Path(layout).name}: {s.agents} agents, T = {s.T}, {len(results)} run(s), {flowed} flowed to T"
+    plot_tile_usage(path, [(title, mean, scen.traversable)], label="share of timesteps occupied")
+    lines = ["row,col,tile,occupancy"] + [
+        f"{i},{j},{rows[i][j]},{mean[i, j]:.6f}" for i in range(mean.shape[0]) for j in range(mean.shape[1])
+    ]
+    atomic_write_bytes(str(Path(path).with_suffix(".csv")), ("\n".join(lines) + "\n").encode())
 
 
 def summarize(runs: list[dict]) -> dict:

@@ -91,6 +91,34 @@ def test_prints_one_line_per_run_and_a_summary(tmp_path):
         assert done.sum() / 60 == pytest.approx(r["throughput"])
 
 
+def test_usage_map_is_the_share_of_timesteps_each_tile_was_held(tmp_path):
+    # Recounted from the executed paths of the same runs (paths_out), not from the simulator's
+    # own visit counts: per run, agents on the tile at times 1..stop_time over stop_time.
+    layout = write_map(tmp_path / "wh.json", WAREHOUSE)
+    png, paths = tmp_path / "usage.png", tmp_path / "paths.npz"
+    args = ("agents=12", "T=40", "seeds=2", f"usage_out={png}", f"paths_out={paths}")
+    proc = run_cli(f"layout={layout}", *args, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert png.stat().st_size > 0
+    data = np.load(paths)
+    expect = np.zeros((len(WAREHOUSE), len(WAREHOUSE[0])))
+    for seed in (0, 1):
+        steps = data[f"paths_seed{seed}"][1:]
+        held = np.zeros_like(expect)
+        np.add.at(held, (steps[..., 0].ravel(), steps[..., 1].ravel()), 1)
+        expect += held / len(steps) / 2
+    lines = (tmp_path / "usage.csv").read_text().splitlines()
+    assert lines[0] == "row,col,tile,occupancy"
+    got = np.zeros_like(expect)
+    for line in lines[1:]:
+        r, c, tile, occ = line.split(",")
+        assert tile == WAREHOUSE[int(r)][int(c)]
+        got[int(r), int(c)] = float(occ)
+    np.testing.assert_allclose(got, expect, atol=1e-6)
+    assert got.sum() == pytest.approx(12)  # every agent somewhere at every step
+    assert (got[np.array([list(row) for row in WAREHOUSE]) == "@"] == 0).all()
+
+
 @pytest.mark.parametrize(
     "rows, args, message",
     [
@@ -106,6 +134,8 @@ def test_prints_one_line_per_run_and_a_summary(tmp_path):
         (WAREHOUSE, ["prioritize_start=maybe"], "prioritize_start must be true or false"),
         (WAREHOUSE, ["starts=fixed"], "starts must be one of random, reference, got 'fixed'"),
         (WAREHOUSE, ["simulator=screen", "screen_crowd_mean=-1"], "crowding threshold"),
+        (WAREHOUSE, ["usage_out=usage.txt"], "usage_out=usage.txt: must name a .png file"),
+        (WAREHOUSE, ["usage_out=nowhere/usage.png"], "folder nowhere does not exist"),
     ],
 )
 def test_bad_input_is_one_line_exit_2(tmp_path, rows, args, message):

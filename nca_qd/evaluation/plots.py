@@ -107,8 +107,11 @@ def plot_curves(
     save_figure(fig, path)
 
 
-def plot_tile_usage(path: str | Path, panels: Sequence[tuple[str, np.ndarray, np.ndarray]]) -> None:
-    """Tile-usage heatmaps side by side: (title, mean visits [H, W], traversable [H, W])."""
+def plot_tile_usage(
+    path: str | Path, panels: Sequence[tuple[str, np.ndarray, np.ndarray]], label: str = "visits per run"
+) -> None:
+    """Tile-usage heatmaps side by side: (title, mean visits [H, W], traversable [H, W]);
+    ``label`` names what the colour measures."""
     import matplotlib.pyplot as plt
 
     from nca_qd.viz import save_figure
@@ -124,7 +127,7 @@ def plot_tile_usage(path: str | Path, panels: Sequence[tuple[str, np.ndarray, np
         ax.set_xticks([])
         ax.set_yticks([])
         ax.set_title(title, fontsize=8)
-        fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02, label="visits per run")
+        fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02, label=label)
     save_figure(fig, path)
 
 
