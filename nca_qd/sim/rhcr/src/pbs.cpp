@@ -154,12 +154,7 @@ bool WindowedPBS::find_path(Node& n, int agent, const std::vector<AgentQuery>& q
   bool ok = astar_.plan(rt_, queries[agent], buf.data(), cost, false);
   if (!ok && prioritize_start_) ok = astar_.plan(rt_, queries[agent], buf.data(), cost, true);
   if (!ok) return false;
-  const int b = new_block();
-  std::copy(buf.begin(), buf.end(), paths_.begin() + static_cast<ptrdiff_t>(b) * (window_ + 1));
-  areas_[b] = area_of(buf.data());
-  costs_[b] = cost;
-  n.total_cost += cost - costs_[n.block[agent]];
-  n.block[agent] = b;
+  store_path(n, agent, buf.data(), cost);
   if (!touched_flag_[agent]) {
     touched_flag_[agent] = 1;
     n.touched.push_back(agent);
@@ -256,11 +251,8 @@ bool WindowedPBS::solve(const std::vector<AgentQuery>& queries, int executed_ste
   root->total_cost = 0;
   for (int a = 0; a < n_agents_; ++a)
     if (!find_path(*root, a, queries, a)) {  // it waits on its start cell (cost 0)
-      const int b = new_block();
-      int* p = paths_.data() + static_cast<size_t>(b) * len;
-      std::fill(p, p + len, queries[a].start);
-      areas_[b] = area_of(p);
-      root->block[a] = b;
+      scratch_path_.assign(len, queries[a].start);
+      store_path(*root, a, scratch_path_.data(), 0);
     }
   for (int a : root->touched) touched_flag_[a] = 0;
   // Whatever the search still holds when it returns goes back to the pool.
@@ -390,6 +382,15 @@ int WindowedPBS::new_block() {
   areas_.push_back(0);
   costs_.push_back(0);
   return b;
+}
+
+void WindowedPBS::store_path(Node& n, int agent, const int* p, int cost) {
+  const int b = new_block();
+  std::copy(p, p + window_ + 1, paths_.begin() + static_cast<ptrdiff_t>(b) * (window_ + 1));
+  areas_[b] = area_of(p);
+  costs_[b] = cost;
+  n.total_cost += cost - costs_[n.block[agent]];
+  n.block[agent] = b;
 }
 
 void WindowedPBS::gather(const Node& n, std::vector<int>& out) const {

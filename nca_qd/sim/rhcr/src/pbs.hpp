@@ -103,6 +103,9 @@ class WindowedPBS {
   uint64_t area(const Node& n, int agent) const { return areas_[n.block[agent]]; }
   // A new block at the arena's end (path, area and cost to be written): its index.
   int new_block();
+  // Give `agent` in node n the path p (window + 1 cells) of estimated cost `cost`, in a new block
+  // (copy on write: the blocks other nodes share stay as they are); n's total cost follows.
+  void store_path(Node& n, int agent, const int* p, int cost);
   // The node's paths as the caller's n_agents * (window + 1) array.
   void gather(const Node& n, std::vector<int>& out) const;
 
