@@ -105,6 +105,7 @@ class WindowedPBS {
   int new_block();
   // Give `agent` in node n the path p (window + 1 cells) of estimated cost `cost`, in a new block
   // (copy on write: the blocks other nodes share stay as they are); n's total cost follows.
+  // p must not point into the arena: new_block() may move it before p is copied.
   void store_path(Node& n, int agent, const int* p, int cost);
   // The node's paths as the caller's n_agents * (window + 1) array.
   void gather(const Node& n, std::vector<int>& out) const;
