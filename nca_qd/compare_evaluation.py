@@ -4,8 +4,11 @@ Each run directory that holds an evaluation (``<run>/evaluation/summary.csv``, w
 ``experiments.evaluate``) contributes its best generator's rows: success rate and throughput of
 successful runs at S and S_eval (tables 2 and 5; exact RHCR runs only — a screened figure is
 never set beside the paper's), NCA generation and repair seconds, the similarity Δ and the
-repair's Hamming distance (table 3), and its tiling baseline at S_eval. The human layouts are
-the same for every arm of a domain: one row per domain, from the first evaluation that has them.
+repair's Hamming distance (table 3), and its tiling baseline at S_eval (where the evaluation
+repaired the tiled layout more than once, ``baselines.tiling_draws``, a row more gives the
+spread over those repairs; the tiling row itself is the first, as the paper ran one). The
+human layouts are the same for every arm of a domain: one row per domain, from the first
+evaluation that has them.
 Over the seeds of an arm each figure is the mean ± s.e. of the seeds' figures; with one seed,
 the success rate counts its runs and the throughput carries the runs' s.e. The number of exact
 runs stands beside each figure: the paper ran 50 (20 for manufacturing at S_eval).
@@ -77,6 +80,11 @@ def _row(rows: Sequence[Mapping[str, str]], kind: str, which: str) -> Mapping[st
     return None
 
 
+def _rows(rows: Sequence[Mapping[str, str]], kind: str, which: str) -> list[Mapping[str, str]]:
+    """Every exact-RHCR row of ``kind`` at ``which`` (the tiling baseline's repair draws)."""
+    return [r for r in rows if r["kind"] == kind and r["which"] == which and r["simulator"] == "rhcr"]
+
+
 def _layout_row(rows: Sequence[Mapping[str, str]], kind: str, which: str) -> Mapping[str, str] | None:
     """The first row of ``kind`` at ``which``, whichever simulator (generation and repair)."""
     return next((r for r in rows if r["kind"] == kind and r["which"] == which), None)
@@ -118,7 +126,8 @@ def _fmt_success(cell: Mapping[str, Any]) -> str:
     if not cell.get("runs"):
         return "—"
     m, se = cell["success"]
-    runs = f"{cell['runs']} runs" if cell["seeds"] == 1 else f"{cell['seeds']} seeds × ≥ {cell['runs']} runs"
+    unit = cell.get("unit", "seeds")
+    runs = f"{cell['runs']} runs" if cell["seeds"] == 1 else f"{cell['seeds']} {unit} × ≥ {cell['runs']} runs"
     spread = "" if math.isnan(se) else f" ± {100 * se:.0f}"
     return f"{100 * m:.0f}{spread} % ({runs})"
 
@@ -152,6 +161,17 @@ def scaling_rows(arms: Sequence[Arm]) -> list[dict[str, Any]]:
                 continue
             out.append({"domain": arm.domain, "layout": label, "seeds": seeds, **_cells(cells)})
             out[-1]["paper"] = _paper_scaling(arm.domain, label)
+        draws = [r for s in seeds for r in _rows(arm.seeds[s], "tiling", "eval")]
+        if len(draws) > len(seeds):  # baselines.tiling_draws > 1: the spread over the repair's draws
+            cell = {**scaling_cell(draws), "unit": "repair draws"}
+            rates = sorted(num(r["success_rate"]) for r in draws if int(r["completed"] or 0) > 0)
+            label = f"tiling of {arm.algorithm}, {len(draws)} repair draws"
+            out.append(
+                {"domain": arm.domain, "layout": label, "seeds": seeds, **_cells({"train": {}, "eval": cell})}
+            )
+            if rates:
+                out[-1]["text_eval"] += f"; per draw {', '.join(f'{100 * x:.0f}' for x in rates)} %"
+            out[-1]["paper"] = _paper_scaling(arm.domain, f"tiling of {arm.algorithm}")
         if arm.domain not in humans_done:
             rows = arm.seeds[seeds[0]]
             cells = {w: scaling_cell([_row(rows, "human", w)]) for w in WHICH}
@@ -253,6 +273,7 @@ _SETTINGS = (
     "T",
     "agents",
     "baselines.tiling_from",
+    "baselines.tiling_draws",
     "n_shelves",
     "repair",
     "exact",
@@ -265,6 +286,9 @@ _NOT_SETTINGS = {
     "exact.reuse",
     "repair.reuse",
 }
+
+# Settings added after evaluations were recorded: what those evaluations ran with.
+_RECORDED_BEFORE = {"baselines.tiling_draws": 1}
 
 
 def read_variants(runs: Sequence[tuple[Path, str, int]]) -> dict[str, list[Arm]]:
@@ -297,7 +321,7 @@ def settings_differing(variant: Path, main: Path) -> list[str]:
         path = folder / "evaluate_config.yaml"
         if not path.is_file():
             return {}
-        cfg = _flat(OmegaConf.to_container(OmegaConf.load(path), resolve=True))
+        cfg = {**_RECORDED_BEFORE, **_flat(OmegaConf.to_container(OmegaConf.load(path), resolve=True))}
         return {k: v for k, v in cfg.items() if k.startswith(_SETTINGS) and k not in _NOT_SETTINGS}
 
     a, b = flat(variant), flat(main)

@@ -299,6 +299,30 @@ def test_a_runs_other_evaluation_gets_its_own_s_eval_table(tmp_path):
     assert float(by[("cma_mae α=5", "evaluation")]["success_eval"]) == pytest.approx(0.7)
 
 
+def test_the_tiling_baselines_repair_draws_get_a_row_of_their_own(tmp_path):
+    """baselines.tiling_draws = k: the first draw stays the table's tiling row (the paper's
+    protocol, one repair); a row below gives success and throughput over the draws and each
+    draw's success, the spread the repair's choice among equally near layouts makes."""
+    _warehouse_run(tmp_path / "s0", 0, 5)
+    (tmp_path / "s0" / "evaluation").mkdir()
+    (tmp_path / "s0" / "evaluation" / "summary.csv").write_text(
+        SUMMARY_HEAD
+        + _summary_row("eval", "nca", "rhcr", 0.9, 16.0, runs=20)
+        + _summary_row("eval", "tiling", "rhcr", 0.0, "", runs=20)
+        + _summary_row("eval", "tiling", "screen", 1.0, 12.0, runs=20)  # not an exact figure
+        + _summary_row("eval", "tiling", "rhcr", 0.6, 16.0, runs=20)
+        + _summary_row("eval", "tiling", "rhcr", 0.3, 15.0, runs=20)
+    )
+    table, _ = compare([tmp_path], tmp_path / "out", name="c")
+    rows = {r.split(" | ")[1]: r for r in table.splitlines() if r.startswith("| warehouse_even | ")}
+    assert "| 0 % (20 runs), N/A |" in rows["tiling of cma_mae α=5"]
+    # (0 + 60 + 30) / 3 = 30 ± 17 %; throughput of the draws that flowed: 15.5 ± 0.5
+    assert (
+        "| 30 ± 17 % (3 repair draws × ≥ 20 runs), 15.50 ± 0.50; per draw 0, 30, 60 % |"
+        in rows["tiling of cma_mae α=5, 3 repair draws"]
+    )
+
+
 CURVE_HEAD = (
     "layout,kind,cell,size,which,n_agents,simulator,runs,completed,timed_out,errors,success_rate,"
     "throughput_mean,throughput_se,ci95_low,ci95_high,throughput_success_mean,throughput_success_se,"

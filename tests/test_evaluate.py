@@ -367,3 +367,33 @@ def test_the_tiling_baseline_tiles_the_repaired_or_the_generated_s_layout(evalua
     assert not np.array_equal(
         region(out / "layouts" / "nca_c3_9x14.json"), region(out / "layouts" / "nca_c3_9x14_unrepaired.json")
     )
+
+
+def test_tiling_draws_repair_one_tiled_layout_with_successive_seeds(evaluated):
+    """baselines.tiling_draws=3: the same tiled layout three times, each repaired with the
+    repair's seed + j (another of the equally near layouts the random tie-break can return),
+    each valid by the independent validator, as near to the tiled layout as the first and
+    simulated as it is. (At 24 shelves this tiling has one nearest repair; at 20 it has several.)"""
+    from nca_qd.layouts import warehouse as wh
+    from nca_qd.repair.validator import check
+
+    out4 = _evaluate_again(
+        evaluated, "evaluation_tiling_draws", "baselines.tiling_draws=3", "n_shelves.eval=20"
+    )
+    rows = [r for r in read(out4 / "layouts.csv") if r["kind"] == "tiling"]
+    assert [r["layout"] for r in rows] == [
+        "tiling (cell 3)",
+        "tiling (cell 3, repair draw 1)",
+        "tiling (cell 3, repair draw 2)",
+    ]
+    names = ["tiling_c3_13x18", "tiling_c3_d1_13x18", "tiling_c3_d2_13x18"]
+    raw = [load_map(out4 / "layouts" / f"{n}_unrepaired.json").rows for n in names]
+    assert raw[0] == raw[1] == raw[2]
+    fixed = [load_map(out4 / "layouts" / f"{n}.json") for n in names]
+    for m in fixed:
+        assert check(m.to_array(wh.TILES), wh.rules((13, 18), n_shelves=20)) is None
+    changed = {sum(a != b for x, y in zip(raw[0], m.rows) for a, b in zip(x, y)) for m in fixed}
+    assert len(changed) == 1 and changed != {0}  # equally near
+    assert len({tuple(m.rows) for m in fixed}) > 1  # another seed, another of the nearest repairs
+    exact = [r for r in read(out4 / "summary.csv") if r["kind"] == "tiling" and r["simulator"] == "rhcr"]
+    assert [r["layout"] for r in exact] == [r["layout"] for r in rows] and {r["runs"] for r in exact} == {"1"}

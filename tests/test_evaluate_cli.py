@@ -47,6 +47,8 @@ def tiny_run(tmp_path_factory):
         ("screen_reuse", "screen.reuse must be true or false, got 'sometimes'"),
         ("shelves_count", "n_shelves.eval must be an integer >= 1, got 0"),
         ("shelves_manufacturing", "n_shelves.eval: manufacturing has no shelves"),
+        ("draws_count", "baselines.tiling_draws must be an integer >= 1, got 0"),
+        ("draws_no_ties", "baselines.tiling_draws=3 needs repair.tie_break=random"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(case, expect, tmp_path, tiny_run, monkeypatch, capsys):
@@ -85,6 +87,10 @@ def test_bad_input_is_one_line_and_exit_2(case, expect, tmp_path, tiny_run, monk
     elif case == "shelves_manufacturing":
         argv[0] = f"run_dir={make_run(tmp_path / 'mf', ['domain=manufacturing'])}"
         argv.append("n_shelves.eval=2500")
+    elif case == "draws_count":
+        argv.append("baselines.tiling_draws=0")
+    elif case == "draws_no_ties":  # every draw would be the same layout
+        argv += ["baselines.tiling_draws=3", "repair.tie_break=none"]
     elif case == "dask":
         argv += ["eval.scheduler=tcp://127.0.0.1:9", "eval.connect_timeout_s=1"]
     code = run_cli(argv, monkeypatch)

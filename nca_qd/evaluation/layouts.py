@@ -127,6 +127,34 @@ def tile_layout(domain_name: str, layout: np.ndarray, full: Sequence[int]) -> np
     return np.asarray(kind.assemble(region), dtype=np.int32)
 
 
+def tiling_draws(
+    plan: Plan, name: str, source: np.ndarray, cell: int | None, raw: bool, layouts: dict[str, EvalLayout]
+) -> list[tuple[EvalLayout, dict]]:
+    """The tiling baseline's layouts, added to ``layouts``, with their repair options: draw 0
+    is the paper's (the repair's own seed); with ``baselines.tiling_draws`` = k > 1, k - 1 more,
+    each the same tiled layout repaired with seed + j: another of the equally near layouts the
+    random tie-break can return, so the baseline's success can be given over draws."""
+    tiled = tile_layout(name, source, plan.s_eval)
+    out = []
+    for j in range(plan.tiling_draws):
+        opts = plan.repair_options(plan.s_eval)
+        if j:
+            opts["seed"] = int(opts.get("seed", 0)) + j
+        item = EvalLayout(
+            f"tiling_c{cell}{f'_d{j}' if j else ''}@{size_str(plan.s_eval)}",
+            f"tiling (cell {cell}{', unrepaired S' if raw else ''}{f', repair draw {j}' if j else ''})",
+            "tiling",
+            size_str(plan.s_eval),
+            "eval",
+            None,
+            tiled.copy(),
+            cell,
+        )
+        layouts[item.key] = item
+        out.append((item, opts))
+    return out
+
+
 def human_layout(domain_name: str, full: Sequence[int], tiles: str) -> np.ndarray | None:
     """The human-designed layout of that size from the reference maps, None if there is none."""
     from nca_qd.io import load_map, reference_maps_dir
@@ -309,18 +337,7 @@ def build_layouts(
                 "generated" if raw else "repaired",
             )
         else:
-            tiled = EvalLayout(
-                f"tiling_c{best.cell}@{size_str(plan.s_eval)}",
-                f"tiling (cell {best.cell}{', unrepaired S' if raw else ''})",
-                "tiling",
-                size_str(plan.s_eval),
-                "eval",
-                None,
-                tile_layout(name, source, plan.s_eval),
-                best.cell,
-            )
-            layouts[tiled.key] = tiled
-            rest.append((tiled, plan.repair_options(plan.s_eval)))
+            rest += tiling_draws(plan, name, source, best.cell, raw, layouts)
     repair(backend, name, rest)
     if plan.human_baseline:
         for shape in dict.fromkeys([*sizes, *plan.curve]):

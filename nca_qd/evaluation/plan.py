@@ -84,6 +84,9 @@ def validated(ecfg: Mapping[str, Any]) -> dict[str, Any]:
             )
         if e["elites"] > sel["pool"]:
             raise NcaQdError(f"elites ({e['elites']}) exceeds select.pool ({sel['pool']})")
+    e["baselines"] = dict(e["baselines"])
+    e["baselines"].setdefault("tiling_draws", 1)  # evaluations recorded before the setting
+    pos("baselines.tiling_draws")
     shelves = e.setdefault("n_shelves", {"train": None, "eval": None})
     for k in ("train", "eval"):
         if shelves.get(k) is not None:
@@ -164,6 +167,7 @@ class Plan:
             raise NcaQdError(
                 f"baselines.tiling_from must be repaired or unrepaired, got {self.tiling_from!r}"
             )
+        self.tiling_draws = int(e["baselines"].get("tiling_draws", 1))
         sc = e["screen"]
         self.screen = ScreenSettings(
             str(sc["where"]),
@@ -227,6 +231,12 @@ class Plan:
             dict.fromkeys([self.s_train] if not scales else [self.s_train, self.s_eval, *self.extra])
         )
         self.all_sizes = [size_str(s) for s in self.sizes]
+        if self.tiling_draws > 1 and self.repair_options(self.s_eval).get("tie_break") != "random":
+            # with tie_break none every draw is the same layout: k runs of one repair
+            raise NcaQdError(
+                f"baselines.tiling_draws={self.tiling_draws} needs repair.tie_break=random "
+                "(each draw is a repair seed; without random tie costs they all give one layout)"
+            )
 
     def which(self, shape: tuple[int, int]) -> str:
         return "train" if shape == self.s_train else "eval" if shape == self.s_eval else "extra"
