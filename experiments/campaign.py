@@ -183,9 +183,15 @@ def _shared_records(run_dir: Path, arms: list[str], folder: str = "evaluation") 
     """``records_from=[...]``: the other ``arms``' evaluation folders (those that exist), whose
     records serve this arm's identical runs: the human baselines are the same layouts at the
     same seeds in every arm, so they are simulated once for the whole comparison. For another
-    evaluation (``folder`` other than ``evaluation``) also the arm's own main evaluation and the
-    other arms' folders of the same name."""
+    evaluation (``folder`` other than ``evaluation``) also the arm's own main evaluation, the
+    other arms' folders of the same name and every other ``evaluation_*`` folder of the arms
+    (one made by hand with some settings changed, e.g. the tiling's repair draws, holds the
+    runs of the layouts it shares: a record serves only a run whose every input is the same)."""
     names = ["evaluation"] if folder == "evaluation" else ["evaluation", folder]
+    if folder != "evaluation":
+        names += sorted(
+            {p.name for a in arms for p in (run_dir.parent / a).glob("evaluation_*") if p.is_dir()} - {folder}
+        )
     folders = [
         str(run_dir.parent / a / name)
         for name in names

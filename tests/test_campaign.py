@@ -248,6 +248,17 @@ def test_a_plans_other_evaluations_run_after_every_arm_into_their_own_folders(tm
         str(root / "b" / "evaluation"),
         str(root / "a" / "evaluation_ns2500"),
     ]
+    # an evaluation made by hand beside them (other settings) lends its records too
+    (root / "a" / "evaluation_draws").mkdir()
+    handed: list[list[str]] = []
+    monkeypatch.setattr(campaign, "evaluate_main", lambda argv: handed.append(argv) or 0)
+    assert campaign._evaluate("b", root / "b", [], None, ["a", "b"], "evaluation_ns2500") == 0
+    assert list(compose_config("evaluate", handed[0]).records_from)[-2:] == [
+        str(root / "a" / "evaluation_ns2500"),
+        str(root / "a" / "evaluation_draws"),
+    ]
+    (root / "a" / "evaluation_draws").rmdir()
+    monkeypatch.setattr(campaign, "evaluate_main", fake_evaluate)
     capsys.readouterr()
     assert campaign.main([f"plan={plan}", "status=true"]) == 0
     assert capsys.readouterr().out.splitlines()[0].endswith(", evaluated; evaluation_ns2500 done")
