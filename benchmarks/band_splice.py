@@ -21,9 +21,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
+from benchmarks.cli import guarded
 from nca_qd.errors import NcaQdError
 from nca_qd.io import MapFile, load_map, save_map
 
@@ -68,31 +68,30 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--keep-cols", type=int, default=0, help="columns a side that stay the target's")
     p.add_argument("--out", type=Path, required=True)
     args = p.parse_args(argv)
-    try:
-        target, source = load_map(args.target), load_map(args.source)
-        if target.shape != source.shape:
-            raise NcaQdError(f"{args.target} is {target.shape}, {args.source} is {source.shape}")
-        copies = [parse_copy(c, target.shape[0]) for c in args.copy]
-        if not 0 <= args.keep_cols < target.shape[1] // 2:
-            top = target.shape[1] // 2 - 1
-            raise NcaQdError(f"--keep-cols must be from 0 to {top}, got {args.keep_cols}")
-        rows = splice(target.rows, source.rows, copies, args.keep_cols)
-        extra = {
-            "spliced": {
-                "target": args.target.name,
-                "source": args.source.name,
-                "copies": args.copy,
-                "keep_cols": args.keep_cols,
-            }
+    return guarded(lambda: _splice_file(args))
+
+
+def _splice_file(args: argparse.Namespace) -> None:
+    target, source = load_map(args.target), load_map(args.source)
+    if target.shape != source.shape:
+        raise NcaQdError(f"{args.target} is {target.shape}, {args.source} is {source.shape}")
+    copies = [parse_copy(c, target.shape[0]) for c in args.copy]
+    if not 0 <= args.keep_cols < target.shape[1] // 2:
+        top = target.shape[1] // 2 - 1
+        raise NcaQdError(f"--keep-cols must be from 0 to {top}, got {args.keep_cols}")
+    rows = splice(target.rows, source.rows, copies, args.keep_cols)
+    extra = {
+        "spliced": {
+            "target": args.target.name,
+            "source": args.source.name,
+            "copies": args.copy,
+            "keep_cols": args.keep_cols,
         }
-        save_map(args.out, MapFile(args.out.stem, rows, extra))
-    except (NcaQdError, OSError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    }
+    save_map(args.out, MapFile(args.out.stem, rows, extra))
     count = sum(r.count("@") for r in rows)
     before = sum(r.count("@") for r in target.rows)
     print(json.dumps({"out": str(args.out), "shelves": count, "target_shelves": before}))
-    return 0
 
 
 if __name__ == "__main__":

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.cli import guarded
 from nca_qd.errors import NcaQdError
 
 CSV_NAME = "maze_paths.csv"
@@ -137,40 +138,39 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--bands", default=None, help="edges over the first measure, comma-separated")
     p.add_argument("--recompute", action="store_true", help="grow the elites even where the CSV exists")
     args = p.parse_args(argv)
-    try:
-        from nca_qd.run_dir import load_run_config
+    return guarded(lambda: _bands(args))
 
-        run_dir = Path(args.run_dir)
-        if not run_dir.is_dir():
-            raise NcaQdError(f"{run_dir}: no such run directory")
-        cfg = load_run_config(run_dir)
-        if cfg.domain.name != "maze":
-            raise NcaQdError(f"{run_dir}: a {cfg.domain.name} run, not a maze run")
-        meas = cfg.domain.measures
-        ranges = [list(map(float, r)) for r in meas.ranges]
-        if args.bands:
-            try:
-                edges = [float(x) for x in args.bands.split(",")]
-            except ValueError:
-                raise NcaQdError(f"--bands {args.bands!r}: expected numbers separated by commas") from None
-            if len(edges) < 2 or any(b <= a for a, b in zip(edges, edges[1:])):
-                raise NcaQdError(f"--bands {args.bands!r}: at least two increasing edges")
-        else:
-            edges = list(np.linspace(ranges[0][0], ranges[0][1], 6))
-        csv_path = run_dir / CSV_NAME
-        if csv_path.is_file() and not args.recompute:
-            rows = read_rows(csv_path)
-            source = str(csv_path)
-        else:
-            rows = elite_rows(run_dir, cfg)
-            write_rows(csv_path, rows)
-            source = f"the result archive (written to {csv_path})"
-    except NcaQdError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+
+def _bands(args: argparse.Namespace) -> None:
+    from nca_qd.run_dir import load_run_config
+
+    run_dir = Path(args.run_dir)
+    if not run_dir.is_dir():
+        raise NcaQdError(f"{run_dir}: no such run directory")
+    cfg = load_run_config(run_dir)
+    if cfg.domain.name != "maze":
+        raise NcaQdError(f"{run_dir}: a {cfg.domain.name} run, not a maze run")
+    meas = cfg.domain.measures
+    ranges = [list(map(float, r)) for r in meas.ranges]
+    if args.bands:
+        try:
+            edges = [float(x) for x in args.bands.split(",")]
+        except ValueError:
+            raise NcaQdError(f"--bands {args.bands!r}: expected numbers separated by commas") from None
+        if len(edges) < 2 or any(b <= a for a, b in zip(edges, edges[1:])):
+            raise NcaQdError(f"--bands {args.bands!r}: at least two increasing edges")
+    else:
+        edges = list(np.linspace(ranges[0][0], ranges[0][1], 6))
+    csv_path = run_dir / CSV_NAME
+    if csv_path.is_file() and not args.recompute:
+        rows = read_rows(csv_path)
+        source = str(csv_path)
+    else:
+        rows = elite_rows(run_dir, cfg)
+        write_rows(csv_path, rows)
+        source = f"the result archive (written to {csv_path})"
     print(f"{run_dir}: {len(rows)} elites, measures {list(meas.names)}, from {source}")
     print("\n".join(band_table(rows, list(meas.cells), ranges, edges)))
-    return 0
 
 
 if __name__ == "__main__":

@@ -33,6 +33,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from benchmarks.cli import guarded
 from nca_qd.agent.paper_accel import N_ENVS, agent_params, play_lockstep_batch, read_state_dict
 from nca_qd.errors import NcaQdError
 from nca_qd.sim import maze_agent as ma
@@ -139,21 +140,21 @@ def main(argv: list[str] | None = None) -> int:
         "--paper-maze", type=int, choices=(16, 64), default=16, help="the paper's NCA maze's interior"
     )
     args = ap.parse_args(argv)
-    try:
-        p = agent_params(read_state_dict(args.checkpoint))
-        run_dir = Path(args.run)
-        if not (run_dir / "config.yaml").is_file():
-            raise NcaQdError(f"{run_dir}: not a run directory (no config.yaml)")
-        sample_path = run_dir / SAMPLE_NAME
-        if sample_path.is_file():
-            with np.load(sample_path) as f:
-                sample = {k: f[k] for k in f.files}
-        else:
-            sample = make_sample(run_dir, args.per_band, args.seed)
-            np.savez_compressed(sample_path, **sample)
-    except NcaQdError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    return guarded(lambda: _side_by_side(args))
+
+
+def _side_by_side(args: argparse.Namespace) -> None:
+    p = agent_params(read_state_dict(args.checkpoint))
+    run_dir = Path(args.run)
+    if not (run_dir / "config.yaml").is_file():
+        raise NcaQdError(f"{run_dir}: not a run directory (no config.yaml)")
+    sample_path = run_dir / SAMPLE_NAME
+    if sample_path.is_file():
+        with np.load(sample_path) as f:
+            sample = {k: f[k] for k in f.files}
+    else:
+        sample = make_sample(run_dir, args.per_band, args.seed)
+        np.savez_compressed(sample_path, **sample)
     key = jax.random.PRNGKey(args.seed)
     k_paper, k_sample = jax.random.split(key)
     size = args.paper_maze + 2
@@ -179,7 +180,6 @@ def main(argv: list[str] | None = None) -> int:
             w.writerow([int(row[0]), f"{row[1]:.5f}", f"{row[2]:.2f}", f"{row[3]:.2f}", f"{row[4]:.2f}"])
     print(f"{run_dir}: {n} elites ({sample_path.name}), per maze in {run_dir / CSV_NAME}")
     print("\n".join(band_lines(sample["m0"], sample["our_path_length"], paper_path, success)))
-    return 0
 
 
 if __name__ == "__main__":

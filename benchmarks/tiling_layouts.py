@@ -20,11 +20,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 
+from benchmarks.cli import guarded
 from nca_qd.errors import NcaQdError
 from nca_qd.evaluation.layouts import tile_layout
 from nca_qd.io import load_map
@@ -71,24 +71,20 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--domain", default="warehouse_even")
     p.add_argument("--band", type=int, default=20, help="rows per band")
     args = p.parse_args(argv)
-    try:
-        if args.band < 1:
-            raise NcaQdError(f"--band must be >= 1, got {args.band}")
-        tiles = tiles_of(args.domain)
-        small = load_map(args.base, tiles).to_array(tiles)
-        size = load_map(args.layouts[0], tiles).to_array(tiles).shape
-        plain = tile_layout(args.domain, small, list(size))
-        print(
-            json.dumps(
-                {"layout": f"{args.base.name} tiled", "shelves": int((plain == tiles.index("@")).sum())}
-            )
-        )
-        for path in args.layouts:
-            print(json.dumps(describe(path, plain, tiles, args.band)), flush=True)
-    except (NcaQdError, OSError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    return 0
+    return guarded(lambda: _describe_all(args))
+
+
+def _describe_all(args: argparse.Namespace) -> None:
+    if args.band < 1:
+        raise NcaQdError(f"--band must be >= 1, got {args.band}")
+    tiles = tiles_of(args.domain)
+    small = load_map(args.base, tiles).to_array(tiles)
+    size = load_map(args.layouts[0], tiles).to_array(tiles).shape
+    plain = tile_layout(args.domain, small, list(size))
+    shelves = int((plain == tiles.index("@")).sum())
+    print(json.dumps({"layout": f"{args.base.name} tiled", "shelves": shelves}))
+    for path in args.layouts:
+        print(json.dumps(describe(path, plain, tiles, args.band)), flush=True)
 
 
 if __name__ == "__main__":

@@ -21,14 +21,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 
+from benchmarks.cli import guarded
 from experiments.cli import compose_config
 from experiments.simulate import RunSettings, exact_run
-from nca_qd.errors import NcaQdError
 from nca_qd.io import load_map
 from nca_qd.layouts import warehouse as wh
 from nca_qd.sim.rhcr import planner_title
@@ -171,20 +170,19 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--edge", type=int, default=5, help="storage columns counted as near the workstations")
     p.add_argument("--out", type=Path, required=True, help="folder for the runs' visits and the picture")
     args = p.parse_args(argv)
-    try:
-        runs = {}
-        for path in args.layouts:
-            r = run_once(path, args.domain, args.agents, args.planner, args.T, args.seed, args.out)
-            runs[path.stem] = r
-            row = {"layout": path.stem, "agents": args.agents, "throughput": round(r["throughput"], 3)}
-            row.update({k: round(v, 4) for k, v in shares(r["rows"], r["visits"], args.T, args.edge).items()})
-            row.update(jam_extent(r["rows"], r["visits"], args.T))
-            print(json.dumps(row), flush=True)
-        draw(args.out / f"traffic_{args.agents}.png", runs, args.agents, args.planner, args.T)
-    except (NcaQdError, OSError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    return 0
+    return guarded(lambda: _map_all(args))
+
+
+def _map_all(args: argparse.Namespace) -> None:
+    runs = {}
+    for path in args.layouts:
+        r = run_once(path, args.domain, args.agents, args.planner, args.T, args.seed, args.out)
+        runs[path.stem] = r
+        row = {"layout": path.stem, "agents": args.agents, "throughput": round(r["throughput"], 3)}
+        row.update({k: round(v, 4) for k, v in shares(r["rows"], r["visits"], args.T, args.edge).items()})
+        row.update(jam_extent(r["rows"], r["visits"], args.T))
+        print(json.dumps(row), flush=True)
+    draw(args.out / f"traffic_{args.agents}.png", runs, args.agents, args.planner, args.T)
 
 
 if __name__ == "__main__":

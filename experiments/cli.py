@@ -170,7 +170,7 @@ def _raise_interrupt(signum, frame) -> None:
 RESUME_HINT = "the last checkpoint is intact; resume with resume=<run dir>"
 
 
-def _path_error(exc: OSError) -> str:
+def path_error(exc: OSError) -> str:
     """``<path>: <reason>`` for a file-system error (both paths of a failed rename or copy)."""
     paths = [str(p) for p in (exc.filename, exc.filename2) if p is not None]
     reason = exc.strerror or str(exc)
@@ -219,7 +219,7 @@ def main_guard(body: Callable[[list[str]], int | None], on_interrupt: str = "") 
         except (FileNotFoundError, NotADirectoryError, IsADirectoryError, PermissionError) as exc:
             # a path given on the command line that cannot be read or written (an output folder
             # under a missing or read-only parent): the path and the reason, not a traceback
-            print(f"error: {_path_error(exc)}", file=sys.stderr)
+            print(f"error: {path_error(exc)}", file=sys.stderr)
             sys.exit(EXIT_USAGE)
         except KeyboardInterrupt:
             print(f"interrupted{': ' + on_interrupt if on_interrupt else ''}", file=sys.stderr)

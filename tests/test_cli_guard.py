@@ -118,3 +118,20 @@ def test_a_switch_that_is_not_true_or_false_is_refused_before_anything_runs(
     assert exc.value.code == 2
     assert err[-1].startswith(f"error: {name} must be true or false, got ")
     assert not out.exists() or not any(out.iterdir())
+
+
+def test_the_benchmark_scripts_guard_says_the_same_in_one_line(tmp_path, capsys):
+    """benchmarks.cli.guarded (the argparse scripts): a user error or a path that cannot be read
+    is one line and 2, as main_guard gives; a script's own status passes through."""
+    from benchmarks.cli import guarded
+    from nca_qd.errors import NcaQdError
+
+    def bad() -> None:
+        raise NcaQdError("--band must be >= 1, got 0")
+
+    missing = tmp_path / "none.json"
+    assert guarded(bad) == 2
+    assert guarded(lambda: missing.open().close()) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["error: --band must be >= 1, got 0", f"error: {missing}: No such file or directory"]
+    assert guarded(lambda: None) == 0 and guarded(lambda: 3) == 3
