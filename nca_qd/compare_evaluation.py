@@ -74,10 +74,7 @@ def read_arms(runs: Sequence[tuple[Path, str, int]], folder: str = MAIN) -> list
 
 def _row(rows: Sequence[Mapping[str, str]], kind: str, which: str) -> Mapping[str, str] | None:
     """The first exact-RHCR row of ``kind`` at ``which`` (the best generator comes first)."""
-    for r in rows:
-        if r["kind"] == kind and r["which"] == which and r["simulator"] == "rhcr":
-            return r
-    return None
+    return next(iter(_rows(rows, kind, which)), None)
 
 
 def _rows(rows: Sequence[Mapping[str, str]], kind: str, which: str) -> list[Mapping[str, str]]:
