@@ -327,7 +327,9 @@ def plot_curves(path: Path, summaries: Sequence[GroupSummary], points: int = 200
 
 def compare(paths: Iterable[str | Path], out: str | Path, name: str = "comparison") -> tuple[str, list[Path]]:
     """Aggregate the runs at ``paths`` into ``out``: ``<name>.md``, ``<name>.csv`` and
-    ``<name>.png``; where runs hold an evaluation, the paper's tables 2, 3 and 5 too
+    ``<name>.png``; where runs measure environment entropy, their elites at low entropy (the
+    paper's appendix on α, :mod:`nca_qd.compare_archive`); where runs hold an evaluation, the
+    paper's tables 2, 3 and 5 too
     (:mod:`nca_qd.compare_evaluation`, ``<name>_evaluation.csv``) and, where it has curves over
     agent counts, figure 3 with its exact points (:mod:`nca_qd.compare_curves`,
     ``<name>_agents.png``). Returns the Markdown and the files written."""
@@ -344,6 +346,7 @@ def compare(paths: Iterable[str | Path], out: str | Path, name: str = "compariso
             + ", ".join(f"`{w}`" for w in waiting)
             + ".\n"
         )
+    from nca_qd.compare_archive import profiles_markdown, read_profiles
     from nca_qd.compare_curves import curves_markdown, read_curves
     from nca_qd.compare_curves import plot_curves as plot_agent_curves
     from nca_qd.compare_evaluation import (
@@ -360,6 +363,7 @@ def compare(paths: Iterable[str | Path], out: str | Path, name: str = "compariso
     arms = read_arms(runs)
     variants = read_variants(runs)
     table += tables_markdown(arms) + variants_markdown(variants, arms)
+    table += profiles_markdown(read_profiles([(c.path, *c.group, c.seed) for c in curves]))
     agent_curves = read_curves(runs)
     table += curves_markdown(agent_curves, f"{name}_agents.png")
     atomic_write_text(files[0], table)

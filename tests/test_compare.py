@@ -392,3 +392,45 @@ def test_an_output_folder_that_cannot_be_made_is_one_line_exit_2(tmp_path, monke
     assert exc.value.code == 2
     assert err == [f"error: {tmp_path / 'file' / 'cmp'}: Not a directory"]
     assert (tmp_path / "r" / "metrics.csv").read_bytes() == before
+
+
+def test_elites_at_low_entropy_are_counted_per_arm_from_each_runs_archive(tmp_path):
+    """The paper's appendix on α (a larger α, more elites at low environment entropy): per arm,
+    the final result archive's elites below fixed entropy values, mean ± s.e. over seeds, read
+    from archive_result.npz; a domain without an entropy measure and a run without an archive
+    get no row."""
+    from nca_qd.qd.archive_io import save_archive
+
+    def archive(path, entropies):
+        n = len(entropies)
+        save_archive(
+            path / "archive_result.npz",
+            {
+                "cells": np.arange(n, dtype=np.int64),
+                "objective": np.full(n, 6.5, np.float32),
+                "measures": np.stack([entropies, np.full(n, 200.0)], axis=1).astype(np.float32),
+                "genotypes": np.zeros((n, 3), np.float32),
+            },
+            [100, 100],
+            [[0, 1], [140, 240]],
+        )
+
+    for seed, ent in ((0, [0.3, 0.45, 0.55, 0.65, 0.8]), (1, [0.4, 0.62, 0.9])):
+        _warehouse_run(tmp_path / f"a5_s{seed}", seed, 5)
+        archive(tmp_path / f"a5_s{seed}", ent)
+    _warehouse_run(tmp_path / "a0_s0", 0, 0)
+    archive(tmp_path / "a0_s0", [0.58, 0.75, 0.85, 0.95])
+    _warehouse_run(tmp_path / "a1_s0", 0, 1)  # no archive kept: no row, no error
+    _fake_run(tmp_path / "maze", "cma_mae", 0, [(100, 1, 0.1)])  # no entropy measure
+    table, _ = compare([tmp_path], tmp_path / "out")
+    section = table.split("## Elites at low environment entropy")[1].split("\n## ")[0]
+    rows = [line for line in section.splitlines() if line.startswith("| warehouse_even")]
+    assert len(rows) == 2, rows
+    a0 = next(r for r in rows if "α=0" in r)
+    a5 = next(r for r in rows if "α=5" in r)
+    # α = 0, one seed: 4 elites, lowest 0.58; below 0.5 / 0.6 / 0.7: 0, 1, 1
+    assert "| 0 | 4 | 0.580 | 0 (0.0 %) | 1 (25.0 %) | 1 (25.0 %) |" in a0
+    # α = 5, seeds 0 and 1: 5 and 3 elites (4 ± 1), lowest 0.3; below 0.5: 2 and 1 (1.5 ± 0.5,
+    # 3 of 8); below 0.6: 3 and 1 (2 ± 1, 4 of 8); below 0.7: 4 and 2 (3 ± 1, 6 of 8)
+    assert "| 0,1 | 4.0 ± 1.0 | 0.300 | 1.5 ± 0.5 (37.5 %) | 2.0 ± 1.0 (50.0 %) | 3.0 ± 1.0 (75.0 %) |" in a5
+    assert "maze" not in section
