@@ -318,6 +318,13 @@ def test_select_by_s_eval_picks_the_best_screened_generator(tmp_path, maps, monk
     # one repair per layout: the pool at S_eval (selection), then the chosen one's S layout only
     assert sorted(repaired) == sorted(["nca_c3@13x18", "nca_c7@13x18", f"nca_c{best['cell']}@9x14"])
     assert load_map(out / "layouts" / f"nca_c{best['cell']}_13x18.json").rows == rows
+    # each candidate's repair figures: the Hamming distance between its generated and repaired
+    # S_eval layouts, counted here from the files, and Δ = 1 - Hamming / tiles
+    unrepaired = load_map(out / "layouts" / f"nca_c{best['cell']}_13x18_unrepaired.json").rows
+    changed = sum(a != b for ra, rb in zip(rows, unrepaired) for a, b in zip(ra, rb))
+    best_row = next(r for r in sel if r["cell"] == best["cell"])
+    assert int(best_row["hamming"]) == changed
+    assert float(best_row["similarity"]) == pytest.approx(1 - changed / (13 * 18), abs=1e-6)
     again = simulate_batch([rows], "warehouse_even", 12, 60, [0, 1])[0]
     assert np.mean([r.throughput for r in again]) == pytest.approx(float(best["screen_throughput_mean"]))
 

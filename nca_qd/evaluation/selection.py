@@ -90,6 +90,9 @@ def select_scalable(
             "cell": it.cell,
             "objective_s": float(objective[it.cell]),
             "repair_status": it.repair.status if it.repair else "",
+            # table 3's figures for each candidate: how much of its S_eval layout the repair drew
+            "similarity": it.repair.similarity if it.repair and it.layout is not None else math.nan,
+            "hamming": it.repair.hamming if it.repair and it.repair.hamming is not None else "",
             "screen_runs": 0,
             "screen_success_rate": math.nan,
             "screen_throughput_mean": math.nan,
