@@ -281,30 +281,28 @@ def test_select_by_s_eval_picks_the_best_screened_generator(tmp_path, maps, monk
     monkeypatch.setattr(ev, "repair_all", counting_repair_all)
     run_dir = make_run(tmp_path / "run")
     out = tmp_path / "evaluation"
-    code = evaluate_cli.main(
-        [
-            f"run_dir={run_dir}",
-            f"out={out}",
-            "T=20",
-            "runs.train=1",
-            "runs.eval=1",
-            "exact.train=0",
-            "exact.eval=0",
-            "sweep.train.agents=[]",
-            "sweep.eval.agents=[]",
-            "sizes.shapes=[]",
-            "sizes.include_main=false",
-            "baselines.tiling=false",
-            "baselines.human=false",
-            "eval.workers=0",
-            "progress=false",
-            "select.by=s_eval",
-            "select.pool=2",
-            "select.runs=2",
-            "select.T=60",
-        ]
-    )
-    assert code == 0
+    args = [
+        f"run_dir={run_dir}",
+        f"out={out}",
+        "T=20",
+        "runs.train=1",
+        "runs.eval=1",
+        "exact.train=0",
+        "exact.eval=0",
+        "sweep.train.agents=[]",
+        "sweep.eval.agents=[]",
+        "sizes.shapes=[]",
+        "sizes.include_main=false",
+        "baselines.tiling=false",
+        "baselines.human=false",
+        "eval.workers=0",
+        "progress=false",
+        "select.by=s_eval",
+        "select.pool=2",
+        "select.runs=2",
+        "select.T=60",
+    ]
+    assert evaluate_cli.main(args) == 0
     sel = read(out / "selection.csv")
     assert sorted(int(r["cell"]) for r in sel) == [3, 7]
     scored = [r for r in sel if r["screen_runs"] == "2"]
@@ -327,6 +325,17 @@ def test_select_by_s_eval_picks_the_best_screened_generator(tmp_path, maps, monk
     assert float(best_row["similarity"]) == pytest.approx(1 - changed / (13 * 18), abs=1e-6)
     again = simulate_batch([rows], "warehouse_even", 12, 60, [0, 1])[0]
     assert np.mean([r.throughput for r in again]) == pytest.approx(float(best["screen_throughput_mean"]))
+    # the same command again: the selection's screened runs come from screen_runs.jsonl (and
+    # the repairs from repairs.jsonl): nothing is simulated, the same selection.csv
+    import nca_qd.sim.screen as screen_mod
+
+    def no_screen(*a, **kw):
+        raise AssertionError("screened again")
+
+    monkeypatch.setattr(screen_mod, "simulate_scenarios", no_screen)
+    before = (out / "selection.csv").read_text()
+    assert evaluate_cli.main(args) == 0
+    assert (out / "selection.csv").read_text() == before
 
 
 def _evaluate_again(evaluated, name: str, *overrides: str) -> Path:

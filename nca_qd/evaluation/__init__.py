@@ -148,14 +148,16 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
     also = ecfg["records_from"]  # other folders' records serve identical runs and repairs
     repair_store = RepairStore(out, also) if plan.repair_reuse else None
     store: ExactRunStore | None = None
-    screen_store: ScreenRunStore | None = None
 
     def repair(backend: Any, domain_name: str, items: list) -> None:
         repair_all(backend, domain_name, items, store=repair_store)
 
+    screen_store = ScreenRunStore(out, also) if plan.screen.reuse else None
     try:
         if by_s_eval:
-            selection = select_scalable(plan, domain, archive, cells_idx, backend, repair=repair)
+            selection = select_scalable(
+                plan, domain, archive, cells_idx, backend, repair=repair, store=screen_store
+            )
             cells_idx = selection.cells
         log.info(
             "evaluating %s (%s): cell(s) %s; sizes %s",
@@ -172,7 +174,6 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
         check_agents(layouts, requests, name, tiles)
         cells = merge_requests(requests)
         store = ExactRunStore(out, also) if plan.exact_reuse else None
-        screen_store = ScreenRunStore(out, also) if plan.screen.reuse else None
         if plan.screen.where == "rest":
             for c in cells.values():
                 if c.exact_runs > 0:

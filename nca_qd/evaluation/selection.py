@@ -19,7 +19,9 @@ from nca_qd.errors import NcaQdError
 from nca_qd.evaluation.layouts import Repair, generate_timed, repair_all
 from nca_qd.evaluation.plan import Plan
 from nca_qd.evaluation.records import EvalLayout, size_str
+from nca_qd.evaluation.store import ScreenRunStore
 from nca_qd.evaluation.tables import write_csv
+from nca_qd.scoring.jobs import RunOutcome
 
 log = logging.getLogger("nca_qd.evaluate")
 
@@ -37,7 +39,14 @@ class Selection:
 
 
 def select_scalable(
-    plan: Plan, domain, archive, pool: np.ndarray, backend, *, repair: Repair = repair_all
+    plan: Plan,
+    domain,
+    archive,
+    pool: np.ndarray,
+    backend,
+    *,
+    repair: Repair = repair_all,
+    store: ScreenRunStore | None = None,
 ) -> Selection:
     """``elites`` cells picked among ``pool`` (the best at S) by a screening run at S_eval.
 
@@ -46,12 +55,14 @@ def select_scalable(
     is ranked by mean screened throughput (a congested run counts the tasks it finished),
     then by the S objective. The generators that scale are not always the best at S (the
     paper's protocol, ``select.by=s``, evaluates those). The pool's layouts are repaired with
-    ``repair`` (:func:`~nca_qd.evaluation.layouts.repair_all` unless given).
+    ``repair`` (:func:`~nca_qd.evaluation.layouts.repair_all` unless given); a layout whose
+    screened runs ``store`` holds (the evaluation's ``screen_runs.jsonl``) is not screened
+    again, and the others' runs go into it: an interrupted selection resumes, and the same
+    command with other outputs costs no simulation.
     """
     from nca_qd.io import array_to_rows
     from nca_qd.pipeline import make_generator
     from nca_qd.sim.scenario import build_scenario
-    from nca_qd.sim.screen import simulate_scenarios
 
     sel, name, tiles = plan.select, domain.name, domain.layout_tiles
     c_eval, size = plan.nca_iters(plan.s_eval), size_str(plan.s_eval)
@@ -84,7 +95,7 @@ def select_scalable(
         sel.T,
     )
     repair(backend, name, [(it, plan.repair_options(plan.s_eval)) for it in items])
-    rows, scens, scored = [], [], []
+    rows, scens, scored, keys = [], [], [], []
     for it in items:
         row = {
             "cell": it.cell,
@@ -103,28 +114,19 @@ def select_scalable(
         if it.layout is None:
             row["note"] = "repair found no layout"
             continue
+        layout_rows = array_to_rows(it.layout, tiles)
         try:
-            scens.append(
-                build_scenario(array_to_rows(it.layout, tiles), name, n_agents=plan.n_eval, source=it.label)
-            )
+            scens.append(build_scenario(layout_rows, name, n_agents=plan.n_eval, source=it.label))
             scored.append(row)
+            seeds = range(plan.seed, plan.seed + sel.runs)
+            keys.append([_key(plan, layout_rows, name, seed) for seed in seeds])
         except NcaQdError as err:
             row["note"] = str(err)
-    if scens:
-        seeds = range(plan.seed, plan.seed + sel.runs)
-        res = simulate_scenarios(
-            scens,
-            plan.n_eval,
-            sel.T,
-            seeds,
-            replan=plan.screen.replan,
-            threads=plan.screen.threads,
-            crowd_mean=plan.screen.crowd_mean,
-        )
-        for row, runs in zip(scored, res):
-            row["screen_runs"] = len(runs)
-            row["screen_success_rate"] = float(np.mean([r.success for r in runs]))
-            row["screen_throughput_mean"] = float(np.mean([r.throughput for r in runs]))
+    runs_of = _screen(plan, scens, keys, store)
+    for row, runs in zip(scored, runs_of):
+        row["screen_runs"] = len(runs)
+        row["screen_success_rate"] = float(np.mean([r.success for r in runs]))
+        row["screen_throughput_mean"] = float(np.mean([r.throughput for r in runs]))
     ranked = sorted(scored, key=lambda r: (-r["screen_throughput_mean"], -r["objective_s"]))
     if not ranked:
         raise NcaQdError(
@@ -148,6 +150,52 @@ def select_scalable(
         rows,
         {it.cell: it for it in items},
     )
+
+
+def _key(plan: Plan, rows: list[str], scenario: str, seed: int) -> str:
+    """The screened run's record key, as the evaluation's own screened runs are keyed."""
+    from nca_qd.scoring.keys import screen_run_key
+
+    s = plan.screen
+    return screen_run_key(rows, scenario, plan.n_eval, plan.select.T, seed, s.replan, s.crowd_mean)
+
+
+def _screen(
+    plan: Plan, scens: list, keys: list[list[str]], store: ScreenRunStore | None
+) -> list[list[RunOutcome]]:
+    """Each scenario's ``select.runs`` screened runs: from ``store`` where it holds them all,
+    the rest simulated in one batch (and recorded)."""
+    from nca_qd.sim.screen import simulate_scenarios
+
+    known: dict[int, list[RunOutcome]] = {}
+    if store is not None:
+        for i, ks in enumerate(keys):
+            outs = [store.get(k, False, False) for k in ks]
+            if all(o is not None for o in outs):
+                known[i] = [o for o in outs if o is not None]
+        if known:
+            log.info("%d screened run(s) reused from %s", sum(map(len, known.values())), store.path)
+    todo = [i for i in range(len(scens)) if i not in known]
+    if todo:
+        seeds = range(plan.seed, plan.seed + plan.select.runs)
+        res = simulate_scenarios(
+            [scens[i] for i in todo],
+            plan.n_eval,
+            plan.select.T,
+            seeds,
+            replan=plan.screen.replan,
+            threads=plan.screen.threads,
+            crowd_mean=plan.screen.crowd_mean,
+        )
+        for i, runs in zip(todo, res):
+            known[i] = [
+                RunOutcome("screen", r.seed, float(r.throughput), bool(r.success), int(r.stop_time))
+                for r in runs
+            ]
+            if store is not None:
+                for k, o in zip(keys[i], known[i]):
+                    store.add(k, o)
+    return [known[i] for i in range(len(scens))]
 
 
 def write_selection(out: Path, selection: Selection, tiles: str) -> None:
