@@ -55,6 +55,21 @@ FAST = [
     "tasks_smooth=5",
 ]
 
+# Screened runs only, at the main sizes only (no curves, no more sizes, no human layouts):
+# for the tests of what an evaluation keeps or picks, not of what it simulates
+SCREEN_ONLY = [
+    "T=20",
+    "exact.train=0",
+    "exact.eval=0",
+    "sweep.train.agents=[]",
+    "sweep.eval.agents=[]",
+    "sizes.shapes=[]",
+    "sizes.include_main=false",
+    "baselines.human=false",
+    "eval.workers=0",
+    "progress=false",
+]
+
 
 def make_run(run_dir: Path, overrides=TINY_RUN, elites=(3, 7), empty=False) -> Path:
     """A run directory with config.yaml and a result archive of random generators."""

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from evaluate_helpers import FAST, TINY_RUN, HUMAN_9x14, make_run, read
+from evaluate_helpers import FAST, SCREEN_ONLY, TINY_RUN, HUMAN_9x14, make_run, read
 
 from experiments import evaluate as evaluate_cli
 from nca_qd import evaluation as ev
@@ -284,19 +284,10 @@ def test_select_by_s_eval_picks_the_best_screened_generator(tmp_path, maps, monk
     args = [
         f"run_dir={run_dir}",
         f"out={out}",
-        "T=20",
+        *SCREEN_ONLY,
         "runs.train=1",
         "runs.eval=1",
-        "exact.train=0",
-        "exact.eval=0",
-        "sweep.train.agents=[]",
-        "sweep.eval.agents=[]",
-        "sizes.shapes=[]",
-        "sizes.include_main=false",
         "baselines.tiling=false",
-        "baselines.human=false",
-        "eval.workers=0",
-        "progress=false",
         "select.by=s_eval",
         "select.pool=2",
         "select.runs=2",

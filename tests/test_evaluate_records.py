@@ -10,7 +10,7 @@ import json
 
 import numpy as np
 import pytest
-from evaluate_helpers import TINY_RUN, HUMAN_9x14, load_map_rows, make_run, read, record_lines
+from evaluate_helpers import SCREEN_ONLY, TINY_RUN, HUMAN_9x14, load_map_rows, make_run, read, record_lines
 
 from experiments import evaluate as evaluate_cli
 from nca_qd import evaluation as ev
@@ -38,18 +38,9 @@ def test_a_failed_repair_is_a_row_without_runs_and_old_outputs_go(tmp_path, maps
                 [
                     f"run_dir={run_dir}",
                     f"out={out}",
-                    "T=20",
+                    *SCREEN_ONLY,
                     "runs.train=2",
                     "runs.eval=2",
-                    "exact.train=0",
-                    "exact.eval=0",
-                    "sweep.train.agents=[]",
-                    "sweep.eval.agents=[]",
-                    "sizes.shapes=[]",
-                    "sizes.include_main=false",
-                    "baselines.human=false",
-                    "eval.workers=0",
-                    "progress=false",
                 ]
             )
             == 0
