@@ -21,6 +21,7 @@ from nca_qd.evaluation.plan import Plan
 from nca_qd.evaluation.records import EvalLayout, size_str
 from nca_qd.evaluation.store import ScreenRunStore
 from nca_qd.evaluation.tables import write_csv
+from nca_qd.interrupts import deferred_interrupts
 from nca_qd.scoring.jobs import RunOutcome
 
 log = logging.getLogger("nca_qd.evaluate")
@@ -57,8 +58,8 @@ def select_scalable(
     paper's protocol, ``select.by=s``, evaluates those). The pool's layouts are repaired with
     ``repair`` (:func:`~nca_qd.evaluation.layouts.repair_all` unless given); a layout whose
     screened runs ``store`` holds (the evaluation's ``screen_runs.jsonl``) is not screened
-    again, and the others' runs go into it: an interrupted selection resumes, and the same
-    command with other outputs costs no simulation.
+    again, and the others' runs go into it: the same command again (after an interruption
+    later in the evaluation, or for other outputs) screens nothing twice.
     """
     from nca_qd.io import array_to_rows
     from nca_qd.pipeline import make_generator
@@ -176,13 +177,15 @@ def _screen(
         if known:
             log.info("%d screened run(s) reused from %s", sum(map(len, known.values())), store.path)
     todo = [i for i in range(len(scens)) if i not in known]
-    if todo:
-        seeds = range(plan.seed, plan.seed + plan.select.runs)
+    if not todo:
+        return [known[i] for i in range(len(scens))]
+    # one batch (minutes at 101x102): an interruption waits until its runs are recorded
+    with deferred_interrupts():
         res = simulate_scenarios(
             [scens[i] for i in todo],
             plan.n_eval,
             plan.select.T,
-            seeds,
+            range(plan.seed, plan.seed + plan.select.runs),
             replan=plan.screen.replan,
             threads=plan.screen.threads,
             crowd_mean=plan.screen.crowd_mean,
