@@ -142,7 +142,13 @@ def test_an_interrupted_evaluation_goes_on_from_its_recorded_runs(evaluated, tmp
     exact = {(r["layout"], r["size"], r["n_agents"], r["seed"]) for r in rows if r["simulator"] == "rhcr"}
     assert len(recorded) == len(exact) > 2
     screened = [r for r in rows if r["simulator"] == "screen"]
-    assert len(record_lines(evaluated, "screen_runs")) == len(screened) > 0
+    # the selection's screened runs are recorded too; the chosen generator's are its S_eval
+    # screened runs (the same layout, agents, T and seeds: select.T = T, select.runs =
+    # runs.eval), recorded once, so the others' runs come on top
+    _, selection = read(evaluated / "selection.csv")
+    others = sum(int(r["screen_runs"]) for r in selection if r["selected"] != "true")
+    assert len(record_lines(evaluated, "screen_runs")) == len(screened) + others
+    assert len(screened) > 0 and others > 0
     assert not (evaluated / "exact_runs.jsonl").exists()  # packed when the evaluation ended
     # the main comparison's screened runs keep their tasks per step but not their tile visits
     # (their cells have exact runs, which draw the heatmaps); the exact runs keep both
