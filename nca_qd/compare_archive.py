@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from nca_qd.compare_evaluation import seed_mean_se
 from nca_qd.errors import NcaQdError
 
 MEASURE = "entropy"
@@ -54,12 +55,6 @@ def read_profiles(runs: Sequence[tuple[Path, str, str, int]]) -> list[Profile]:
         entropy = np.asarray(archive["measures"])[filled, names.index(MEASURE)]
         out.append(Profile(domain, algorithm, seed, entropy.astype(float)))
     return out
-
-
-def _mean_se(values: Sequence[float]) -> tuple[float, float]:
-    v = np.asarray(values, float)
-    se = float(v.std(ddof=1) / np.sqrt(len(v))) if len(v) > 1 else float("nan")
-    return float(v.mean()), se
 
 
 def _fmt(pair: tuple[float, float], share: float) -> str:
@@ -100,9 +95,9 @@ def profiles_markdown(profiles: Sequence[Profile]) -> str:
         cells = []
         for b in BELOW:
             below = [int(np.sum(p.entropy < b)) for p in runs]
-            cells.append(_fmt(_mean_se(below), sum(below) / max(sum(n), 1)))
+            cells.append(_fmt(seed_mean_se(below), sum(below) / max(sum(n), 1)))
         lowest = min((float(p.entropy.min()) for p in runs if len(p.entropy)), default=float("nan"))
-        n_text = _count(_mean_se(n))
+        n_text = _count(seed_mean_se(n))
         lines.append(
             f"| {domain} | {algorithm} | {','.join(str(p.seed) for p in runs)} | {n_text} "
             f"| {lowest:.3f} | " + " | ".join(cells) + " |"

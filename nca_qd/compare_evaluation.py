@@ -92,7 +92,9 @@ def num(value: str | None) -> float:
     return float(value) if value not in (None, "") else math.nan
 
 
-def _mean_se(values: Sequence[float]) -> tuple[float, float]:
+def seed_mean_se(values: Sequence[float]) -> tuple[float, float]:
+    """Mean and standard error over seeds of the finite values (NaN s.e. for one value: a
+    single seed has none, and the tables print it alone)."""
     v = np.asarray([x for x in values if math.isfinite(x)], float)
     if v.size == 0:
         return math.nan, math.nan
@@ -114,8 +116,8 @@ def scaling_cell(rows_by_seed: Sequence[Mapping[str, str] | None]) -> dict[str, 
     return {
         "seeds": len(found),
         "runs": min(runs),
-        "success": _mean_se(success),
-        "throughput": _mean_se(means),
+        "success": seed_mean_se(success),
+        "throughput": seed_mean_se(means),
     }
 
 
@@ -205,7 +207,7 @@ def runtime_rows(arms: Sequence[Arm]) -> list[dict[str, Any]]:
                 ("similarity", "delta"),
                 ("hamming", "hamming"),
             ):
-                row[f"{key}_{name}"] = _mean_se([num(r[col]) if r else math.nan for r in rows])
+                row[f"{key}_{name}"] = seed_mean_se([num(r[col]) if r else math.nan for r in rows])
         p = RUNTIME.get((arm.domain, arm.algorithm))
         row["paper"] = (
             f"{p.nca_s:g} s, {p.milp_s:,g} s, Δ {p.delta_s:.2f} / {p.nca_eval:g} s, {p.milp_eval:,g} s, "
