@@ -19,7 +19,9 @@ serve what did not change). An evaluation cut by the call's time keeps its finis
 ``evaluate_also: {tag: [overrides]}``, once every arm has finished and been evaluated, each arm is
 evaluated again into ``<root>/<arm>/evaluation_<tag>`` with its evaluate overrides followed by
 the tag's (the same protocol with some settings changed: ``experiments.compare`` sets their
-S_eval rows beside the main evaluation's), drawing on the main evaluation's records.
+S_eval rows beside the main evaluation's), drawing on the main evaluation's records;
+``evaluate_also_arms: {tag: [arm, ...]}`` keeps a tag to the arms named (the others skip it: an
+evaluation that only some rows of the comparison need costs the others nothing).
 Exit 0 when every arm has finished (and been evaluated), 75 when the time ran out first (call
 again; commit the arms' folders between calls to carry them to another machine). Bad input: one
 line, exit 2.
@@ -70,13 +72,15 @@ def _not_the_campaigns(path: Path, overrides: list[str]) -> list[str]:
 class Plan(NamedTuple):
     """A campaign plan, checked: its root folder, the overrides common to every arm, each arm's,
     each arm's evaluate overrides (None: the arms are not evaluated) and the other evaluations
-    (``evaluate_also``: tag -> overrides added to each arm's evaluate overrides)."""
+    (``evaluate_also``: tag -> overrides added to each arm's evaluate overrides) and the arms
+    each of those is for (``evaluate_also_arms``; every arm where the plan does not say)."""
 
     root: Path
     common: list[str]
     arms: dict[str, list[str]]
     evaluate: dict[str, list[str]] | None
     also: dict[str, list[str]]
+    also_arms: dict[str, list[str]]
 
 
 TAG_CHARS = set("abcdefghijklmnopqrstuvwxyz0123456789_")
@@ -123,7 +127,16 @@ def load_plan(name: str) -> Plan:
                     f"{path}: evaluate_also's tag {tag!r} must be lower-case letters, digits and _"
                 )
             also[str(tag)] = _not_the_campaigns(path, _overrides(path, f"evaluate_also.{tag}", overrides))
-    return Plan(Path(str(raw.root)), [str(c) for c in common], arms, evaluate, also)
+    also_arms = {tag: list(arms) for tag in also}
+    for_arms = raw.get("evaluate_also_arms")
+    if for_arms is not None:
+        if not isinstance(for_arms, DictConfig) or set(map(str, for_arms)) - set(also):
+            raise NcaQdError(f"{path}: evaluate_also_arms must map tags of evaluate_also to lists of arms")
+        for tag, named in for_arms.items():
+            if not isinstance(named, ListConfig) or not named or set(map(str, named)) - set(arms):
+                raise NcaQdError(f"{path}: evaluate_also_arms.{tag} must list arms of the plan")
+            also_arms[str(tag)] = [a for a in arms if a in set(map(str, named))]
+    return Plan(Path(str(raw.root)), [str(c) for c in common], arms, evaluate, also, also_arms)
 
 
 def evaluated(run_dir: Path, overrides: list[str] | None = None, folder_name: str = "evaluation") -> bool:
@@ -277,6 +290,8 @@ def main(argv: list[str]) -> int:
                 else:
                     line += ", not yet evaluated"
                 for tag, extra in plan.also.items():
+                    if arm not in plan.also_arms[tag]:
+                        continue
                     done = evaluated(root / arm, [*evaluate[arm], *extra], f"evaluation_{tag}")
                     line += f"; evaluation_{tag} {'done' if done else 'after every arm'}"
             print(line)
@@ -320,7 +335,7 @@ def main(argv: list[str]) -> int:
     for tag, extra in plan.also.items():
         assert evaluate is not None
         folder = f"evaluation_{tag}"
-        for arm in arms:
+        for arm in plan.also_arms[tag]:
             overrides = [*evaluate[arm], *extra]
             if evaluated(root / arm, overrides, folder):
                 continue

@@ -273,3 +273,60 @@ def test_a_plans_other_evaluations_run_after_every_arm_into_their_own_folders(tm
         plan.write_text(f"root: {root}\narms:\n  a: [seed=0]\n" + bad)
         with pytest.raises(NcaQdError, match=match):
             campaign.load_plan(str(plan))
+
+
+def test_a_plans_other_evaluation_may_be_kept_to_some_arms(tmp_path, monkeypatch, capsys):
+    """evaluate_also_arms: {tag: [arm, ...]}: the tag's evaluation runs for the arms named only
+    (a row of the comparison that the other arms do not have costs them nothing); status says
+    nothing of it for the others; a tag or an arm the plan lacks is one clear error."""
+    from experiments import campaign
+    from experiments.cli import compose_config
+
+    root = tmp_path / "arms"
+    seen: list[list[str]] = []
+
+    def fake_evaluate(argv):
+        seen.append(argv)
+        cfg = compose_config("evaluate", argv)
+        out = Path(cfg.out or Path(cfg.run_dir) / "evaluation")
+        out.mkdir(parents=True, exist_ok=True)
+        OmegaConf.save(cfg, out / "evaluate_config.yaml")
+        (out / "summary.csv").write_text("domain\nwarehouse_even\n")
+        return 0
+
+    for arm in ("a", "b", "c"):
+        (root / arm).mkdir(parents=True)
+        (root / arm / "config.yaml").write_text("qd:\n  n_evals: 10\n")
+        (root / arm / "metrics.csv").write_text("iteration,evaluations,qd_score,coverage\n1,10,5,0.1\n")
+    monkeypatch.setattr(campaign, "evaluate_main", fake_evaluate)
+    plan = tmp_path / "plan.yaml"
+    head = f"root: {root}\narms:\n  a: [seed=0]\n  b: [seed=1]\n  c: [seed=2]\nevaluate: [T=30]\n"
+    also = "evaluate_also:\n  ns2500: [n_shelves.eval=2500]\n  short: [T=20]\n"
+    plan.write_text(head + also + "evaluate_also_arms:\n  ns2500: [c, a]\n")
+    assert campaign.load_plan(str(plan)).also_arms == {"ns2500": ["a", "c"], "short": ["a", "b", "c"]}
+    assert campaign.main([f"plan={plan}"]) == 0
+    outs = [compose_config("evaluate", argv).out for argv in seen]
+    assert outs[:3] == [None, None, None]
+    assert outs[3:] == [str(root / a / f"evaluation_{t}") for t, a in [("ns2500", "a"), ("ns2500", "c")]] + [
+        str(root / a / "evaluation_short") for a in ("a", "b", "c")
+    ]
+    assert not (root / "b" / "evaluation_ns2500").exists()
+    capsys.readouterr()
+    assert campaign.main([f"plan={plan}", "status=true"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].endswith("evaluation_ns2500 done; evaluation_short done")
+    assert "ns2500" not in lines[1] and lines[1].endswith("evaluation_short done")
+    seen.clear()
+    assert campaign.main([f"plan={plan}"]) == 0 and seen == []  # b is not owed an ns2500 evaluation
+    for bad, match in (
+        ("evaluate_also_arms:\n  other: [a]\n", "tags of evaluate_also"),
+        ("evaluate_also_arms:\n  ns2500: [d]\n", "must list arms of the plan"),
+        ("evaluate_also_arms:\n  ns2500: []\n", "must list arms of the plan"),
+        ("evaluate_also_arms:\n  ns2500: a\n", "must list arms of the plan"),
+    ):
+        plan.write_text(head + also + bad)
+        with pytest.raises(NcaQdError, match=match):
+            campaign.load_plan(str(plan))
+    plan.write_text(head + "evaluate_also_arms:\n  ns2500: [a]\n")
+    with pytest.raises(NcaQdError, match="tags of evaluate_also"):
+        campaign.load_plan(str(plan))
