@@ -287,7 +287,7 @@ _NOT_SETTINGS = {
 }
 
 # Settings added after evaluations were recorded: what those evaluations ran with.
-_RECORDED_BEFORE = {"baselines.tiling_draws": 1}
+_RECORDED_BEFORE = {"baselines.tiling_draws": 1, "select.exact_top": 0, "select.exact_runs": 2}
 
 
 def read_variants(runs: Sequence[tuple[Path, str, int]]) -> dict[str, list[Arm]]:

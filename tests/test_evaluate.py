@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from evaluate_helpers import FAST, SCREEN_ONLY, TINY_RUN, HUMAN_9x14, make_run, read
+from evaluate_helpers import FAST, SCREEN_ONLY, TINY_RUN, HUMAN_9x14, make_run, read, record_lines
 
 from experiments import evaluate as evaluate_cli
 from nca_qd import evaluation as ev
@@ -327,6 +327,80 @@ def test_select_by_s_eval_picks_the_best_screened_generator(tmp_path, maps, monk
     before = (out / "selection.csv").read_text()
     assert evaluate_cli.main(args) == 0
     assert (out / "selection.csv").read_text() == before
+
+
+def test_select_exact_top_checks_the_screens_best_by_exact_runs(tmp_path, maps):
+    """select.exact_top: the best by the screen get select.exact_runs exact RHCR runs at S_eval
+    and the best by those (success rate, then mean throughput) is chosen; each candidate's
+    exact figures are reproduced by simulating its saved layout here, and with select.T = T
+    the chosen one's check runs are its first S_eval runs (recorded once, not run again)."""
+    from experiments.cli import compose_config
+    from nca_qd.sim.rhcr import simulate
+
+    run_dir = make_run(tmp_path / "run")
+    out = tmp_path / "evaluation"
+    args = [
+        f"run_dir={run_dir}",
+        f"out={out}",
+        *SCREEN_ONLY,
+        "runs.train=1",
+        "runs.eval=3",
+        "exact.eval=3",
+        "exact.time_limit_s=60",
+        "baselines.tiling=false",
+        "select.by=s_eval",
+        "select.pool=2",
+        "select.runs=2",
+        "select.T=20",
+        "select.exact_top=2",
+        "select.exact_runs=2",
+    ]
+    assert evaluate_cli.main(args) == 0
+    sel = read(out / "selection.csv")
+    checked = [r for r in sel if r["exact_runs"] == "2"]
+    assert len(checked) == 2, sel
+    ex = compose_config("evaluate", args).exact
+    for r in checked:
+        rows = load_map(out / r["file"]).rows
+        opts = {"window": ex.window, "replan": ex.replan}
+        runs = [simulate(rows, "warehouse_even", 12, 20, seed, **opts) for seed in (0, 1)]
+        assert float(r["exact_success_rate"]) == pytest.approx(np.mean([x.success for x in runs]))
+        assert float(r["exact_throughput_mean"]) == pytest.approx(np.mean([x.throughput for x in runs]))
+    best = max(checked, key=lambda r: (float(r["exact_success_rate"]), float(r["exact_throughput_mean"])))
+    assert [r["cell"] for r in sel if r["selected"] == "true"] == [best["cell"]]
+    assert {r["cell"] for r in read(out / "summary.csv") if r["kind"] == "nca"} == {best["cell"]}
+    # 2 candidates x 2 check runs, and the chosen one's third S_eval run: 5 exact runs, not 7
+    assert len(record_lines(out, "exact_runs")) == 5
+    chosen = [r for r in read(out / "runs.csv") if r["simulator"] == "rhcr" and r["size"] == "13x18"]
+    assert sorted(int(r["seed"]) for r in chosen) == [0, 1, 2]
+    # and a bad setting is one clear error
+    with pytest.raises(NcaQdError, match=r"select.exact_top \(3\) exceeds select.pool \(2\)"):
+        evaluate_cli.main([*args, "select.exact_top=3"])
+
+
+def test_the_exact_check_ranks_before_the_screen(monkeypatch):
+    """_exact_check puts the checked candidates first by exact success, then throughput, even
+    against the screen's order, and leaves the unchecked in the screen's order after them."""
+    from types import SimpleNamespace
+
+    from nca_qd.evaluation import selection
+
+    def fake_cells(cells, layouts, *a, **kw):
+        figures = {"a": (False, 3.0), "b": (True, 1.0), "c": (True, 2.0)}
+        return {
+            (k, n, "rhcr"): [RunOutcome("rhcr", s, figures[k][1], figures[k][0], 20) for s in (0, 1)]
+            for (k, n) in cells
+        }
+
+    monkeypatch.setattr("nca_qd.evaluation.runs.simulate_cells", fake_cells)
+    plan = SimpleNamespace(
+        select=ev.SelectSettings("s_eval", 4, 2, 20, 3, 2), n_eval=12, seed=0, select_exact=None, screen=None
+    )
+    items = {i: SimpleNamespace(key=k) for i, k in enumerate("abcd")}
+    ranked = [{"cell": i, "exact_runs": 0} for i in range(4)]  # the screen's order: a, b, c, d
+    out = selection._exact_check(plan, "warehouse_even", "", items, ranked, None, None)
+    assert [r["cell"] for r in out] == [2, 1, 0, 3]
+    assert out[0]["exact_success_rate"] == 1.0 and out[0]["exact_throughput_mean"] == 2.0
 
 
 def _evaluate_again(evaluated, name: str, *overrides: str) -> Path:

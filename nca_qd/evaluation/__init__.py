@@ -147,16 +147,23 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
     selection: Selection | None = None
     also = ecfg["records_from"]  # other folders' records serve identical runs and repairs
     repair_store = RepairStore(out, also) if plan.repair_reuse else None
-    store: ExactRunStore | None = None
 
     def repair(backend: Any, domain_name: str, items: list) -> None:
         repair_all(backend, domain_name, items, store=repair_store)
 
     screen_store = ScreenRunStore(out, also) if plan.screen.reuse else None
+    store = ExactRunStore(out, also) if plan.exact_reuse else None
     try:
         if by_s_eval:
             selection = select_scalable(
-                plan, domain, archive, cells_idx, backend, repair=repair, store=screen_store
+                plan,
+                domain,
+                archive,
+                cells_idx,
+                backend,
+                repair=repair,
+                store=screen_store,
+                exact_store=store,
             )
             cells_idx = selection.cells
         log.info(
@@ -173,7 +180,6 @@ def evaluate(ecfg: Mapping[str, Any], domain_override: str | None = None) -> Eva
         requests = plan.requests(layouts)
         check_agents(layouts, requests, name, tiles)
         cells = merge_requests(requests)
-        store = ExactRunStore(out, also) if plan.exact_reuse else None
         if plan.screen.where == "rest":
             for c in cells.values():
                 if c.exact_runs > 0:

@@ -73,11 +73,15 @@ def validated(ecfg: Mapping[str, Any]) -> dict[str, Any]:
 
     planner_options(e["exact"], "exact.")
     sel = e.setdefault("select", {"by": "s", "pool": 10, "runs": 2, "T": 1000})
+    sel = e["select"] = {"exact_top": 0, "exact_runs": 2, **sel}  # evaluations recorded before them
     if sel.get("by") not in ("s", "s_eval"):
         raise NcaQdError(f"select.by must be s or s_eval, got {sel.get('by')!r}")
     if sel["by"] == "s_eval":
-        for p in ("select.pool", "select.runs", "select.T"):
+        for p in ("select.pool", "select.runs", "select.T", "select.exact_runs"):
             pos(p)
+        pos("select.exact_top", allow_zero=True)
+        if sel["exact_top"] > sel["pool"]:
+            raise NcaQdError(f"select.exact_top ({sel['exact_top']}) exceeds select.pool ({sel['pool']})")
         if isinstance(e["elites"], bool) or not isinstance(e["elites"], int):
             raise NcaQdError(
                 f"select.by=s_eval picks a number of elites; elites must be a count, got {e['elites']!r}"
@@ -126,12 +130,15 @@ def exact_settings(exact_cfg: Mapping[str, Any], T: int) -> ExactSettings:
 
 
 class SelectSettings(NamedTuple):
-    """``select``: how the generators to evaluate are picked (``by``: s | s_eval)."""
+    """``select``: how the generators to evaluate are picked (``by``: s | s_eval; with s_eval,
+    the ``exact_top`` best by the screen checked by ``exact_runs`` exact runs each)."""
 
     by: str
     pool: int
     runs: int
     T: int
+    exact_top: int = 0
+    exact_runs: int = 2
 
 
 class ScreenSettings(NamedTuple):
@@ -158,7 +165,14 @@ class Plan:
         self.T, self.seed = int(e["T"]), int(e["seed"])
         self.tasks_smooth, self.progress = int(e["tasks_smooth"]), require_bool("progress", e["progress"])
         sel = e["select"]
-        self.select = SelectSettings(str(sel["by"]), int(sel["pool"]), int(sel["runs"]), int(sel["T"]))
+        self.select = SelectSettings(
+            str(sel["by"]),
+            int(sel["pool"]),
+            int(sel["runs"]),
+            int(sel["T"]),
+            int(sel["exact_top"]),
+            int(sel["exact_runs"]),
+        )
         self.elites = e["elites"]  # a count, or a list of cells
         self.human_baseline = require_bool("baselines.human", e["baselines"]["human"])
         self.tiling_baseline = require_bool("baselines.tiling", e["baselines"]["tiling"])
@@ -177,6 +191,7 @@ class Plan:
             bool(sc["reuse"]),
         )
         self.exact = exact_settings(e["exact"], self.T)
+        self.select_exact = exact_settings(e["exact"], self.select.T)  # the selection's exact check
         self.exact_reuse = bool(e["exact"]["reuse"])
         self.repair_reuse = bool(e["repair"]["reuse"])
         self.repair_overrides = {k: v for k, v in e["repair"].items() if v is not None and k != "reuse"}

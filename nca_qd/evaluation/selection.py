@@ -1,7 +1,10 @@
 """``select.by=s_eval``: the generators to evaluate chosen by a screening run at S_eval.
 
 :func:`select_scalable` generates and repairs the pool's S_eval layouts, screens them and
-ranks the pool; the :class:`Selection` keeps those layouts, which the evaluation reuses, and
+ranks the pool, then (``select.exact_top``) checks the best few by exact RHCR runs, since the
+screen and RHCR disagree most on the layouts near congestion (results/warehouse_even_qd/
+top20_seval: the screen let 30 % of an α = 0 archive's best runs flow where RHCR let 50 %);
+the :class:`Selection` keeps those layouts, which the evaluation reuses, and
 :func:`write_selection` writes selection.csv and the layouts under selection/.
 """
 
@@ -18,8 +21,8 @@ import numpy as np
 from nca_qd.errors import NcaQdError
 from nca_qd.evaluation.layouts import Repair, generate_timed, repair_all
 from nca_qd.evaluation.plan import Plan
-from nca_qd.evaluation.records import EvalLayout, size_str
-from nca_qd.evaluation.store import ScreenRunStore
+from nca_qd.evaluation.records import EvalLayout, Request, size_str
+from nca_qd.evaluation.store import ExactRunStore, ScreenRunStore
 from nca_qd.evaluation.tables import write_csv
 from nca_qd.interrupts import deferred_interrupts
 from nca_qd.scoring.jobs import RunOutcome
@@ -48,6 +51,7 @@ def select_scalable(
     *,
     repair: Repair = repair_all,
     store: ScreenRunStore | None = None,
+    exact_store: ExactRunStore | None = None,
 ) -> Selection:
     """``elites`` cells picked among ``pool`` (the best at S) by a screening run at S_eval.
 
@@ -59,7 +63,9 @@ def select_scalable(
     ``repair`` (:func:`~nca_qd.evaluation.layouts.repair_all` unless given); a layout whose
     screened runs ``store`` holds (the evaluation's ``screen_runs.jsonl``) is not screened
     again, and the others' runs go into it: the same command again (after an interruption
-    later in the evaluation, or for other outputs) screens nothing twice.
+    later in the evaluation, or for other outputs) screens nothing twice. With
+    ``select.exact_top`` > 0 the best by the screen are checked by exact RHCR
+    (:func:`_exact_check`; their runs recorded in, and reused from, ``exact_store``).
     """
     from nca_qd.io import array_to_rows
     from nca_qd.pipeline import make_generator
@@ -108,6 +114,9 @@ def select_scalable(
             "screen_runs": 0,
             "screen_success_rate": math.nan,
             "screen_throughput_mean": math.nan,
+            "exact_runs": 0,
+            "exact_success_rate": math.nan,
+            "exact_throughput_mean": math.nan,
             "note": "",
             "selected": False,
         }
@@ -134,23 +143,90 @@ def select_scalable(
             f"select.by=s_eval: none of the {len(pool)} generator(s) gave a "
             f"layout to screen at {size} (see the log)"
         )
+    by_cell = {it.cell: it for it in items}
+    ranked = _exact_check(plan, name, tiles, by_cell, ranked, backend, exact_store)
     for r in ranked[: int(plan.elites)]:
         r["selected"] = True
     for r in ranked:
+        exact = (
+            f"; exact: throughput {r['exact_throughput_mean']:.3f}, success {r['exact_success_rate']:.2f}"
+            if r["exact_runs"]
+            else ""
+        )
         log.info(
-            "cell %d: S objective %.3f, screened at %s: throughput %.3f, success %.2f%s",
+            "cell %d: S objective %.3f, screened at %s: throughput %.3f, success %.2f%s%s",
             r["cell"],
             r["objective_s"],
             size,
             r["screen_throughput_mean"],
             r["screen_success_rate"],
+            exact,
             " (selected)" if r["selected"] else "",
         )
     return Selection(
         np.asarray([r["cell"] for r in ranked[: int(plan.elites)]], dtype=int),
         rows,
-        {it.cell: it for it in items},
+        by_cell,
     )
+
+
+def _exact_check(
+    plan: Plan,
+    scenario: str,
+    tiles: str,
+    items: dict[int, EvalLayout],
+    ranked: list[dict[str, Any]],
+    backend,
+    store: ExactRunStore | None,
+) -> list[dict[str, Any]]:
+    """The ranking after the exact check: the ``select.exact_top`` best by the screen, each run
+    ``select.exact_runs`` times under exact RHCR at S_eval (N_a_eval agents, ``select.T``
+    steps, the evaluation's seeds and planner), first, by their exact success rate and then
+    mean throughput (completed runs); the others after them in the screen's order. Their rows
+    get the exact figures. With ``select.T`` equal to ``T`` the chosen generator's check runs
+    are its first S_eval runs, which the evaluation takes from ``store``."""
+    from nca_qd.evaluation.runs import simulate_cells
+
+    top = ranked[: plan.select.exact_top]
+    if not top:
+        return ranked
+    n = plan.n_eval
+    cells = {
+        (items[r["cell"]].key, n): Request("select", items[r["cell"]].key, n, 0, plan.select.exact_runs)
+        for r in top
+    }
+    log.info(
+        "checking the %d best by the screen by %d exact run(s) each (T=%d)",
+        len(top),
+        plan.select.exact_runs,
+        plan.select.T,
+    )
+    layouts = {items[r["cell"]].key: items[r["cell"]] for r in top}
+    results = simulate_cells(
+        cells,
+        layouts,
+        scenario,
+        tiles,
+        plan.select.T,
+        plan.seed,
+        backend,
+        plan.select_exact,
+        plan.screen,
+        progress=False,
+        store=store,
+    )
+    for r in top:
+        done = [o for o in results[(items[r["cell"]].key, n, "rhcr")] if o.completed]
+        r["exact_runs"] = len(done)
+        if done:
+            r["exact_success_rate"] = float(np.mean([o.success for o in done]))
+            r["exact_throughput_mean"] = float(np.mean([o.throughput for o in done]))
+
+    def by_exact(r: dict[str, Any]) -> tuple[float, float]:  # no completed run: last
+        ok = r["exact_runs"] > 0
+        return (-r["exact_success_rate"] if ok else 1.0, -r["exact_throughput_mean"] if ok else 0.0)
+
+    return sorted(top, key=by_exact) + ranked[len(top) :]
 
 
 def _key(plan: Plan, rows: list[str], scenario: str, seed: int) -> str:
