@@ -25,6 +25,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from nca_qd.evaluation.stats import mean_se_ci
 from nca_qd.qd import checkpoint as ck
 from nca_qd.qd.benchmarks import normalised_qd_score, sphere_batch_objective, sphere_spec
 from nca_qd.qd.emitters import ESEmitters
@@ -179,9 +180,8 @@ def main(argv: list[str] | None = None) -> None:
 
 
 def _mean_se(xs: list[float]) -> str:
-    a = np.asarray(xs, float)
-    se = a.std(ddof=1) / np.sqrt(a.size) if a.size > 1 else float("nan")
-    return f"{a.mean():.3f} ± {se:.3f}"
+    m, se = mean_se_ci(xs)[:2]
+    return f"{m:.3f} ± {se:.3f}"
 
 
 if __name__ == "__main__":

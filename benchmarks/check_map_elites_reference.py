@@ -21,6 +21,7 @@ import math
 import jax
 import numpy as np
 
+from nca_qd.evaluation.stats import mean_se_ci
 from nca_qd.qd.benchmarks import sphere_batch_objective, sphere_objective, sphere_spec
 from nca_qd.qd.emitters import IsoLineEmitter
 from nca_qd.qd.loop import QDLoop
@@ -78,11 +79,6 @@ def pyribs(archive: str, seed: int, iterations: int) -> tuple[float, float]:
     return float(result.stats.qd_score), float(result.stats.coverage)
 
 
-def _mean_se(values: list[float]) -> tuple[float, float]:
-    v = np.asarray(values)
-    return float(v.mean()), float(v.std(ddof=1) / math.sqrt(len(v))) if len(v) > 1 else math.nan
-
-
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--iterations", type=int, default=400)
@@ -97,7 +93,7 @@ def main(argv: list[str] | None = None) -> None:
         row = {}
         for name, run in (("here", ours), ("pyribs", pyribs)):
             runs = [run(archive, s, args.iterations) for s in range(args.seeds)]
-            row[name] = (_mean_se([q for q, _ in runs]), _mean_se([c for _, c in runs]))
+            row[name] = (mean_se_ci([q for q, _ in runs])[:2], mean_se_ci([c for _, c in runs])[:2])
         (qa, sa), (ca, csa) = row["here"]
         (qb, sb), (cb, csb) = row["pyribs"]
         z = (qa - qb) / math.hypot(sa, sb) if sa > 0 or sb > 0 else math.nan

@@ -39,6 +39,8 @@ from pathlib import Path
 
 import numpy as np
 
+from nca_qd.evaluation.stats import mean_se_ci
+
 ROOT = Path(__file__).resolve().parents[1]
 DRIVER_DIR = ROOT / "benchmarks" / "lacam3_lifelong"
 RNG_HPP = ROOT / "nca_qd" / "sim" / "rhcr" / "src" / "rng.hpp"  # the driver draws with the core's own stream
@@ -171,16 +173,11 @@ def run_lacam3(binary: Path, prefix: Path, n: int, T: int, seed: int, trace: Pat
     return out
 
 
-def mean_se(x: list[float]) -> tuple[float, float]:
-    a = np.asarray(x, dtype=float)
-    return float(a.mean()), float(a.std(ddof=1) / np.sqrt(a.size)) if a.size > 1 else float("nan")
-
-
 def table_row(name: str, n: int, ours: list[dict], theirs: list[dict]) -> str:
     """One markdown row: both planners' mean ± s.e. and congested runs, the relative difference
     (lacam3 against ours), and the two tolerances it is held to."""
-    mo, so = mean_se([r["throughput"] for r in ours])
-    ml, sl = mean_se([r["throughput"] for r in theirs])
+    mo, so = mean_se_ci([r["throughput"] for r in ours])[:2]
+    ml, sl = mean_se_ci([r["throughput"] for r in theirs])[:2]
     se_diff = float(np.hypot(so, sl))
     rel = 100 * (ml / mo - 1) if mo > 0 else float("nan")
     within_pct = "yes" if abs(rel) <= 2 else "no"
