@@ -67,9 +67,7 @@ def select_scalable(
     ``select.exact_top`` > 0 the best by the screen are checked by exact RHCR
     (:func:`_exact_check`; their runs recorded in, and reused from, ``exact_store``).
     """
-    from nca_qd.io import array_to_rows
     from nca_qd.pipeline import make_generator
-    from nca_qd.sim.scenario import build_scenario
 
     sel, name, tiles = plan.select, domain.name, domain.layout_tiles
     c_eval, size = plan.nca_iters(plan.s_eval), size_str(plan.s_eval)
@@ -102,7 +100,39 @@ def select_scalable(
         sel.T,
     )
     repair(backend, name, [(it, plan.repair_options(plan.s_eval)) for it in items])
-    rows, scens, scored, keys = [], [], [], []
+    rows, scored, scens, keys = _candidates(plan, items, objective, name, tiles)
+    runs_of = _screen(plan, scens, keys, store)
+    for row, runs in zip(scored, runs_of):
+        row["screen_runs"] = len(runs)
+        row["screen_success_rate"] = float(np.mean([r.success for r in runs]))
+        row["screen_throughput_mean"] = float(np.mean([r.throughput for r in runs]))
+    ranked = sorted(scored, key=lambda r: (-r["screen_throughput_mean"], -r["objective_s"]))
+    if not ranked:
+        raise NcaQdError(
+            f"select.by=s_eval: none of the {len(pool)} generator(s) gave a "
+            f"layout to screen at {size} (see the log)"
+        )
+    by_cell = {it.cell: it for it in items}
+    ranked = _exact_check(plan, name, tiles, by_cell, ranked, backend, exact_store)
+    for r in ranked[: int(plan.elites)]:
+        r["selected"] = True
+    _log_ranking(ranked, size)
+    return Selection(
+        np.asarray([r["cell"] for r in ranked[: int(plan.elites)]], dtype=int),
+        rows,
+        by_cell,
+    )
+
+
+def _candidates(
+    plan: Plan, items: list[EvalLayout], objective: np.ndarray, scenario: str, tiles: str
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]], list, list[list[str]]]:
+    """selection.csv's row per candidate (its repair's figures; the simulations' to come), and
+    for those with a layout to screen: their rows, scenarios and screened runs' record keys."""
+    from nca_qd.io import array_to_rows
+    from nca_qd.sim.scenario import build_scenario
+
+    rows, scored, scens, keys = [], [], [], []
     for it in items:
         row = {
             "cell": it.cell,
@@ -126,27 +156,16 @@ def select_scalable(
             continue
         layout_rows = array_to_rows(it.layout, tiles)
         try:
-            scens.append(build_scenario(layout_rows, name, n_agents=plan.n_eval, source=it.label))
+            scens.append(build_scenario(layout_rows, scenario, n_agents=plan.n_eval, source=it.label))
             scored.append(row)
-            seeds = range(plan.seed, plan.seed + sel.runs)
-            keys.append([_key(plan, layout_rows, name, seed) for seed in seeds])
+            seeds = range(plan.seed, plan.seed + plan.select.runs)
+            keys.append([_key(plan, layout_rows, scenario, seed) for seed in seeds])
         except NcaQdError as err:
             row["note"] = str(err)
-    runs_of = _screen(plan, scens, keys, store)
-    for row, runs in zip(scored, runs_of):
-        row["screen_runs"] = len(runs)
-        row["screen_success_rate"] = float(np.mean([r.success for r in runs]))
-        row["screen_throughput_mean"] = float(np.mean([r.throughput for r in runs]))
-    ranked = sorted(scored, key=lambda r: (-r["screen_throughput_mean"], -r["objective_s"]))
-    if not ranked:
-        raise NcaQdError(
-            f"select.by=s_eval: none of the {len(pool)} generator(s) gave a "
-            f"layout to screen at {size} (see the log)"
-        )
-    by_cell = {it.cell: it for it in items}
-    ranked = _exact_check(plan, name, tiles, by_cell, ranked, backend, exact_store)
-    for r in ranked[: int(plan.elites)]:
-        r["selected"] = True
+    return rows, scored, scens, keys
+
+
+def _log_ranking(ranked: list[dict[str, Any]], size: str) -> None:
     for r in ranked:
         exact = (
             f"; exact: throughput {r['exact_throughput_mean']:.3f}, success {r['exact_success_rate']:.2f}"
@@ -163,11 +182,6 @@ def select_scalable(
             exact,
             " (selected)" if r["selected"] else "",
         )
-    return Selection(
-        np.asarray([r["cell"] for r in ranked[: int(plan.elites)]], dtype=int),
-        rows,
-        by_cell,
-    )
 
 
 def _exact_check(
