@@ -208,15 +208,10 @@ def test_an_arm_may_add_to_the_plans_evaluation(tmp_path):
             campaign.load_plan(str(plan))
 
 
-def test_a_plans_other_evaluations_run_after_every_arm_into_their_own_folders(tmp_path, monkeypatch, capsys):
-    """evaluate_also: {tag: [overrides]}: once every arm has finished and been evaluated, each
-    arm is evaluated again into <arm>/evaluation_<tag> with its evaluate overrides and the
-    tag's, drawing on its own main evaluation's records and the other arms'; done once."""
-    from experiments import campaign
+def _recording_evaluation(seen: list[list[str]]):
+    """A stand-in for experiments.evaluate's main: records its argv in ``seen`` and writes what a
+    finished evaluation leaves (its config, summary.csv) where the real one would."""
     from experiments.cli import compose_config
-
-    root = tmp_path / "arms"
-    seen: list[list[str]] = []
 
     def fake_evaluate(argv):
         seen.append(argv)
@@ -227,10 +222,29 @@ def test_a_plans_other_evaluations_run_after_every_arm_into_their_own_folders(tm
         (out / "summary.csv").write_text("domain\nwarehouse_even\n")
         return 0
 
-    for arm in ("a", "b"):
+    return fake_evaluate
+
+
+def _finished_arms(root: Path, arms) -> None:
+    """Arm folders under ``root`` whose searches have finished (10 of 10 evaluations)."""
+    for arm in arms:
         (root / arm).mkdir(parents=True)
         (root / arm / "config.yaml").write_text("qd:\n  n_evals: 10\n")
         (root / arm / "metrics.csv").write_text("iteration,evaluations,qd_score,coverage\n1,10,5,0.1\n")
+
+
+def test_a_plans_other_evaluations_run_after_every_arm_into_their_own_folders(tmp_path, monkeypatch, capsys):
+    """evaluate_also: {tag: [overrides]}: once every arm has finished and been evaluated, each
+    arm is evaluated again into <arm>/evaluation_<tag> with its evaluate overrides and the
+    tag's, drawing on its own main evaluation's records and the other arms'; done once."""
+    from experiments import campaign
+    from experiments.cli import compose_config
+
+    root = tmp_path / "arms"
+    seen: list[list[str]] = []
+
+    fake_evaluate = _recording_evaluation(seen)
+    _finished_arms(root, ("a", "b"))
     monkeypatch.setattr(campaign, "evaluate_main", fake_evaluate)
     plan = tmp_path / "plan.yaml"
     plan.write_text(
@@ -285,19 +299,8 @@ def test_a_plans_other_evaluation_may_be_kept_to_some_arms(tmp_path, monkeypatch
     root = tmp_path / "arms"
     seen: list[list[str]] = []
 
-    def fake_evaluate(argv):
-        seen.append(argv)
-        cfg = compose_config("evaluate", argv)
-        out = Path(cfg.out or Path(cfg.run_dir) / "evaluation")
-        out.mkdir(parents=True, exist_ok=True)
-        OmegaConf.save(cfg, out / "evaluate_config.yaml")
-        (out / "summary.csv").write_text("domain\nwarehouse_even\n")
-        return 0
-
-    for arm in ("a", "b", "c"):
-        (root / arm).mkdir(parents=True)
-        (root / arm / "config.yaml").write_text("qd:\n  n_evals: 10\n")
-        (root / arm / "metrics.csv").write_text("iteration,evaluations,qd_score,coverage\n1,10,5,0.1\n")
+    fake_evaluate = _recording_evaluation(seen)
+    _finished_arms(root, ("a", "b", "c"))
     monkeypatch.setattr(campaign, "evaluate_main", fake_evaluate)
     plan = tmp_path / "plan.yaml"
     head = f"root: {root}\narms:\n  a: [seed=0]\n  b: [seed=1]\n  c: [seed=2]\nevaluate: [T=30]\n"

@@ -265,6 +265,15 @@ def test_pick_cells():
         ev.pick_cells(obj, [1, 7, 2])
 
 
+def _selection_args(tmp_path: Path, *more: str) -> tuple[Path, list[str]]:
+    """The evaluation folder and the arguments of a screened evaluation of a tiny run (S_eval
+    only, no tiling baseline) whose generators are picked by select.by=s_eval among its two,
+    2 screened runs each, with ``more``."""
+    run_dir, out = make_run(tmp_path / "run"), tmp_path / "evaluation"
+    pool = ["baselines.tiling=false", "select.by=s_eval", "select.pool=2", "select.runs=2"]
+    return out, [f"run_dir={run_dir}", f"out={out}", *SCREEN_ONLY, "runs.train=1", *pool, *more]
+
+
 def test_select_by_s_eval_picks_the_best_screened_generator(tmp_path, maps, monkeypatch):
     """select.by=s_eval screens the pool's S_eval layouts and evaluates the best one; its
     figure is reproduced by screening the layout saved under selection/, and the evaluation
@@ -279,20 +288,7 @@ def test_select_by_s_eval_picks_the_best_screened_generator(tmp_path, maps, monk
         return real_repair_all(backend, domain_name, items, **kw)
 
     monkeypatch.setattr(ev, "repair_all", counting_repair_all)
-    run_dir = make_run(tmp_path / "run")
-    out = tmp_path / "evaluation"
-    args = [
-        f"run_dir={run_dir}",
-        f"out={out}",
-        *SCREEN_ONLY,
-        "runs.train=1",
-        "runs.eval=1",
-        "baselines.tiling=false",
-        "select.by=s_eval",
-        "select.pool=2",
-        "select.runs=2",
-        "select.T=60",
-    ]
+    out, args = _selection_args(tmp_path, "runs.eval=1", "select.T=60")
     assert evaluate_cli.main(args) == 0
     sel = read(out / "selection.csv")
     assert sorted(int(r["cell"]) for r in sel) == [3, 7]
@@ -337,24 +333,15 @@ def test_select_exact_top_checks_the_screens_best_by_exact_runs(tmp_path, maps):
     from experiments.cli import compose_config
     from nca_qd.sim.rhcr import simulate
 
-    run_dir = make_run(tmp_path / "run")
-    out = tmp_path / "evaluation"
-    args = [
-        f"run_dir={run_dir}",
-        f"out={out}",
-        *SCREEN_ONLY,
-        "runs.train=1",
+    out, args = _selection_args(
+        tmp_path,
         "runs.eval=3",
         "exact.eval=3",
         "exact.time_limit_s=60",
-        "baselines.tiling=false",
-        "select.by=s_eval",
-        "select.pool=2",
-        "select.runs=2",
         "select.T=20",
         "select.exact_top=2",
         "select.exact_runs=2",
-    ]
+    )
     assert evaluate_cli.main(args) == 0
     sel = read(out / "selection.csv")
     checked = [r for r in sel if r["exact_runs"] == "2"]
