@@ -46,7 +46,7 @@ class EvalLayout:
 class Request:
     """What one table or curve needs of one layout at one agent count."""
 
-    purpose: str  # main_train | main_eval | sweep_train | sweep_eval | sizes
+    purpose: str  # main_train | main_eval | sweep_train | sweep_eval | sizes | select (exact check)
     layout: str  # EvalLayout.key
     n_agents: int
     screen_runs: int
