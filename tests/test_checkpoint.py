@@ -165,13 +165,16 @@ def test_map_elites_state_round_trips_exactly_under_the_default_policy(tmp_path)
 
 
 def test_sphere_resumed_from_compact_checkpoints_stays_on_course():
-    """5 resumes from compact checkpoints: the QD-score ends close to the uninterrupted run's
-    (``make bench`` runs the longer and larger version of this against a 2 % target)."""
+    """5 resumes from compact checkpoints: the QD-score ends close to the uninterrupted run's,
+    on average over 4 seeds (one run's ratio moves by ±25 % from seed to seed and CPU to CPU:
+    seed 0 gave 0.83 on an AMD EPYC; ``make bench`` runs the longer and larger version of this
+    against a 2 % target)."""
     from benchmarks.bench_checkpoint import sphere_resumed
 
-    full, resumed, _ = sphere_resumed(100, 6, 12, 120, 5)
-    assert resumed == pytest.approx(full, rel=0.15), (full, resumed)
-    assert resumed > 0
+    pairs = [sphere_resumed(100, 6, 12, 120, 5, seed=s)[:2] for s in range(4)]
+    full, resumed = np.mean(pairs, axis=0)
+    assert resumed == pytest.approx(full, rel=0.15), pairs
+    assert all(r > 0 for _, r in pairs)
 
 
 def test_a_checkpoint_of_another_configuration_is_one_clear_error(cma_mae_sphere, tmp_path):
