@@ -286,9 +286,6 @@ _NOT_SETTINGS = {
     "repair.reuse",
 }
 
-# Settings added after evaluations were recorded: what those evaluations ran with.
-_RECORDED_BEFORE = {"baselines.tiling_draws": 1, "select.exact_top": 0, "select.exact_runs": 2}
-
 
 def read_variants(runs: Sequence[tuple[Path, str, int]]) -> dict[str, list[Arm]]:
     """The runs' other evaluations by tag: ``<run_dir>/evaluation_<tag>/summary.csv``."""
@@ -316,11 +313,13 @@ def settings_differing(variant: Path, main: Path) -> list[str]:
     the evaluation in folder ``variant`` set otherwise than the one in ``main``."""
     from omegaconf import OmegaConf
 
+    from nca_qd.evaluation.plan import ADDED_LATER
+
     def flat(folder: Path) -> dict[str, Any]:
         path = folder / "evaluate_config.yaml"
         if not path.is_file():
             return {}
-        cfg = {**_RECORDED_BEFORE, **_flat(OmegaConf.to_container(OmegaConf.load(path), resolve=True))}
+        cfg = {**ADDED_LATER, **_flat(OmegaConf.to_container(OmegaConf.load(path), resolve=True))}
         return {k: v for k, v in cfg.items() if k.startswith(_SETTINGS) and k not in _NOT_SETTINGS}
 
     a, b = flat(variant), flat(main)

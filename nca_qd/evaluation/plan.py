@@ -32,6 +32,11 @@ def records_from(value: Any) -> list[str]:
     return [str(f) for f in value]
 
 
+# Settings added after evaluations were recorded, with the value those evaluations ran with:
+# filled in where an older evaluate_config.yaml lacks them (here and in experiments.compare).
+ADDED_LATER = {"baselines.tiling_draws": 1, "select.exact_top": 0, "select.exact_runs": 2}
+
+
 def validated(ecfg: Mapping[str, Any]) -> dict[str, Any]:
     """Plain copy of the config with its numbers checked (one clear error each)."""
     e = dict(ecfg)
@@ -73,7 +78,8 @@ def validated(ecfg: Mapping[str, Any]) -> dict[str, Any]:
 
     planner_options(e["exact"], "exact.")
     sel = e.setdefault("select", {"by": "s", "pool": 10, "runs": 2, "T": 1000})
-    sel = e["select"] = {"exact_top": 0, "exact_runs": 2, **sel}  # evaluations recorded before them
+    backfill = {k.split(".")[1]: v for k, v in ADDED_LATER.items() if k.startswith("select.")}
+    sel = e["select"] = {**backfill, **sel}
     if sel.get("by") not in ("s", "s_eval"):
         raise NcaQdError(f"select.by must be s or s_eval, got {sel.get('by')!r}")
     if sel["by"] == "s_eval":
@@ -89,7 +95,7 @@ def validated(ecfg: Mapping[str, Any]) -> dict[str, Any]:
         if e["elites"] > sel["pool"]:
             raise NcaQdError(f"elites ({e['elites']}) exceeds select.pool ({sel['pool']})")
     e["baselines"] = dict(e["baselines"])
-    e["baselines"].setdefault("tiling_draws", 1)  # evaluations recorded before the setting
+    e["baselines"].setdefault("tiling_draws", ADDED_LATER["baselines.tiling_draws"])
     pos("baselines.tiling_draws")
     shelves = e.setdefault("n_shelves", {"train": None, "eval": None})
     for k in ("train", "eval"):
