@@ -425,6 +425,38 @@ def test_another_folders_records_serve_identical_runs_and_are_copied_not_moved(t
     assert alone.get("human@101x102 seed 0", True, False) is not None
 
 
+def test_a_reused_record_is_named_by_the_file_it_was_read_from(tmp_path):
+    """The log line of reused runs names the folder a record came from: another arm's
+    (records_from), this folder's superseded file or its own, with counts when they differ, not
+    this folder's file for every one (it is only copied there)."""
+    from nca_qd.evaluation.store import ExactRunStore
+
+    other, here = tmp_path / "arm_a" / "evaluation", tmp_path / "arm_b" / "evaluation"
+    a = ExactRunStore(other)
+    for k in ("h0", "h1"):
+        a.add(k, RunOutcome("rhcr", 0, 0.3, False, 200, False, 1.0))
+    a.pack()
+    first = ExactRunStore(here)
+    for k in ("mine", "old"):
+        first.add(k, RunOutcome("rhcr", 0, 16.0, True, 5000, False, 1.0))
+    first.pack()
+    own = ExactRunStore(here)
+    assert own.get("mine", False) is not None
+    assert own.prune() == 1  # "old" was not used: it moves to the superseded file
+
+    b = ExactRunStore(here, [other])
+    for k in ("h0", "h1", "mine", "old"):
+        assert b.get(k, False) is not None
+    theirs, mine = str(other / "exact_runs.jsonl"), str(here / "exact_runs.jsonl")
+    assert b.sources(["h0", "h1"]) == theirs
+    assert b.sources(["mine"]) == mine
+    assert b.sources(["old"]) == str(here / "exact_runs.superseded.jsonl")
+    assert b.sources(["h0", "mine", "h1"]) == f"{theirs} (2), {mine} (1)"
+    # copied into this folder's file, the record still names where it was read from
+    assert "h0" in {x["key"] for x in record_lines(here, "exact_runs")}
+    assert b.sources(["h0"]) == theirs
+
+
 def test_records_from_must_name_folders(tmp_path):
     from nca_qd.evaluation.plan import records_from
 

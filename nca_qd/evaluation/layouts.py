@@ -249,7 +249,7 @@ def _recorded_repair(
             "%s at %s: the recorded repair breaks a rule (%s); repairing again", item.label, item.size, bad
         )
         return None
-    log.info("%s at %s: repair reused from %s", item.label, item.size, store.path)
+    log.info("%s at %s: repair reused from %s", item.label, item.size, store.sources([key]))
     return known
 
 

@@ -74,7 +74,7 @@ def simulate_cells(
     rows = {k: array_to_rows(v.layout, tiles) for k, v in layouts.items() if v.layout is not None}
     results: Results = {}
     done: dict[tuple[str, int], list[RunOutcome]] = {}  # added to results after the screen's
-    jobs, slots, run_keys = [], [], []
+    jobs, slots, run_keys, reused_keys = [], [], [], []
     for (key, n), c in cells.items():
         for i in range(c.exact_runs):
             rk = exact_run_key(rows[key], scenario, n, seed0 + i, exact)
@@ -82,14 +82,13 @@ def simulate_cells(
             done.setdefault((key, n), [])
             if known is not None:
                 done[(key, n)].append(known)
+                reused_keys.append(rk)
                 continue
             jobs.append((rows[key], scenario, n, seed0 + i, exact, c.detail))
             slots.append((key, n))
             run_keys.append(rk)
-    if store is not None:
-        reused = sum(c.exact_runs for c in cells.values()) - len(jobs)
-        if reused:
-            log.info("%d exact RHCR run(s) reused from %s", reused, store.path)
+    if store is not None and reused_keys:
+        log.info("%d exact RHCR run(s) reused from %s", len(reused_keys), store.sources(reused_keys))
 
     def record(i: int, out: Any) -> None:
         if store is not None:
@@ -152,18 +151,17 @@ def _screen_cells(
         unit="cell",
         dynamic_ncols=True,
     )
-    reused = 0
+    reused: list[str] = []
     for (shape, n), group in sorted(groups.items(), key=lambda kv: (kv[0][0], kv[0][1])):
         bar.set_postfix(size=size_str(shape), agents=n)
         known: dict[str, list[RunOutcome]] = {}
         if store is not None:
             for c in group:
-                outs = [
-                    store.get(key_of(c, seed0 + i), c.detail, _screen_visits(c)) for i in range(c.screen_runs)
-                ]
+                ks = [key_of(c, seed0 + i) for i in range(c.screen_runs)]
+                outs = [store.get(k, c.detail, _screen_visits(c)) for k in ks]
                 if all(o is not None for o in outs):
                     known[c.layout] = [o for o in outs if o is not None]
-                    reused += len(outs)
+                    reused += ks
         todo = [c for c in group if c.layout not in known]
         # a batch is minutes of one JAX call at 101x102: an interruption waits until its runs
         # are recorded, instead of dropping them
@@ -178,7 +176,7 @@ def _screen_cells(
             results[(c.layout, n, "screen")] = known[c.layout]
         bar.update(len(group))
     if reused and store is not None:
-        log.info("%d screened run(s) reused from %s", reused, store.path)
+        log.info("%d screened run(s) reused from %s", len(reused), store.sources(reused))
     bar.close()
 
 

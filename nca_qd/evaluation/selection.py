@@ -265,7 +265,8 @@ def _screen(
             if all(o is not None for o in outs):
                 known[i] = [o for o in outs if o is not None]
         if known:
-            log.info("%d screened run(s) reused from %s", sum(map(len, known.values())), store.path)
+            used = [k for i in known for k in keys[i]]
+            log.info("%d screened run(s) reused from %s", len(used), store.sources(used))
     todo = [i for i in range(len(scens)) if i not in known]
     if not todo:
         return [known[i] for i in range(len(scens))]

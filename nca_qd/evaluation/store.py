@@ -46,7 +46,8 @@ import logging
 import os
 import threading
 import zlib
-from collections.abc import Mapping, Sequence
+from collections import Counter
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -120,6 +121,8 @@ class JsonlRecords:
         self._spare: dict[str, dict[str, Any]] = {}  # the superseded file's records
         # other folders' records (``also``: read, never written), for lookups only
         self._borrowed: dict[str, dict[str, Any]] = {}
+        self._lent_by: dict[str, Path] = {}  # the folder each borrowed record was read from
+        self._origin: dict[str, Path] = {}  # where each record this evaluation found was read
         self._used: set[str] = set()  # keys this evaluation found or added
         self._lock = threading.Lock()
         self._open_line = False  # the file ends inside a line (a write cut short)
@@ -139,7 +142,9 @@ class JsonlRecords:
             n = len(self._borrowed)
             for path in (other.with_name(other.name + ".gz"), other):
                 if path.is_file():
-                    self._borrowed.update(self._read(path)[0])
+                    recs = self._read(path)[0]
+                    self._borrowed.update(recs)
+                    self._lent_by.update(dict.fromkeys(recs, Path(folder)))
             if len(self._borrowed) > n:
                 log.info("%s: %d %s to draw on", folder, len(self._borrowed) - n, self.what)
 
@@ -184,12 +189,28 @@ class JsonlRecords:
 
     def _find(self, key: str) -> dict[str, Any] | None:
         """The record of ``key`` in the main file, else in the superseded one, else in another
-        folder's."""
-        for recs in (self._runs, self._spare, self._borrowed):
-            rec = recs.get(key)
-            if rec is not None:
-                return rec
-        return None
+        folder's (which of them is remembered for :meth:`sources`)."""
+        if key in self._runs:
+            rec, origin = self._runs[key], self._origin.get(key, self.path)
+        elif key in self._spare:
+            rec, origin = self._spare[key], self.superseded_path
+        elif key in self._borrowed:
+            rec, origin = self._borrowed[key], self._lent_by[key] / self.filename
+        else:
+            return None
+        with self._lock:
+            self._origin.setdefault(key, origin)
+        return rec
+
+    def sources(self, keys: Iterable[str]) -> str:
+        """Where the records of ``keys`` were read from, for a log line: one file, or each file
+        with its count (``a/exact_runs.jsonl (12), b/exact_runs.jsonl (3)``). A record read from
+        another folder (``records_from``) or the superseded file is named by that file, not by
+        this folder's, into which it was copied."""
+        counts = Counter(str(self._origin.get(k, self.path)) for k in keys)
+        if len(counts) == 1:
+            return next(iter(counts))
+        return ", ".join(f"{path} ({n})" for path, n in counts.most_common())
 
     def _use(self, key: str, rec: dict[str, Any]) -> None:
         """Mark a found record as used by this evaluation; one from the superseded file or
