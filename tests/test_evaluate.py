@@ -465,3 +465,22 @@ def test_tiling_draws_repair_one_tiled_layout_with_successive_seeds(evaluated):
     assert len({tuple(m.rows) for m in fixed}) > 1  # another seed, another of the nearest repairs
     exact = [r for r in read(out4 / "summary.csv") if r["kind"] == "tiling" and r["simulator"] == "rhcr"]
     assert [r["layout"] for r in exact] == [r["layout"] for r in rows] and {r["runs"] for r in exact} == {"1"}
+
+
+def test_detail_false_keeps_verdicts_and_throughputs_but_no_per_step_records_or_pictures(evaluated):
+    """detail=false (a check that needs only verdicts): the same figures as the detailed
+    evaluation of the same run (same layouts, seeds), no tasks_over_time_* or tile_usage_*
+    files, and exact records without tasks per step or tile visits (the bulk of a record)."""
+    out, _ = evaluated
+    bare = _evaluate_again(evaluated, "evaluation_bare", "detail=false")
+    assert not list(bare.glob("tasks_over_time_*")) and not list(bare.glob("tile_usage_*"))
+    assert list(out.glob("tasks_over_time_*")) and list(out.glob("tile_usage_*"))
+    recs = record_lines(bare, "exact_runs")
+    assert recs and all(r["tasks_per_step"] is None and r["tile_visits"] is None for r in recs)
+    assert any(r["tasks_per_step"] is not None for r in record_lines(out, "exact_runs"))
+
+    def figures(folder: Path) -> list[tuple[str, ...]]:
+        cols = ("size", "n_agents", "layout", "simulator", "runs", "success_rate", "throughput_mean")
+        return sorted(tuple(r[c] for c in cols) for r in read(folder / "summary.csv"))
+
+    assert figures(bare) == figures(out)

@@ -103,7 +103,8 @@ def write_outputs(
             )
     for which in ("train", "eval"):
         _write_sweep(out, which, name, stat_rows.get(f"sweep_{which}", []), T)
-        _write_detail(out, which, name, layouts, requests, results, T, plan.tasks_smooth, tiles, lab)
+        if plan.detail:
+            _write_detail(out, which, name, layouts, requests, results, T, plan.tasks_smooth, tiles, lab)
     _write_sizes(out, stat_rows.get("sizes", []))
     summary = summary_rows(name, layouts, requests, results, plan)
     for row in summary:

@@ -34,7 +34,7 @@ def records_from(value: Any) -> list[str]:
 
 # Settings added after evaluations were recorded, with the value those evaluations ran with:
 # filled in where an older evaluate_config.yaml lacks them (here and in experiments.compare).
-ADDED_LATER = {"baselines.tiling_draws": 1, "select.exact_top": 0, "select.exact_runs": 2}
+ADDED_LATER = {"baselines.tiling_draws": 1, "select.exact_top": 0, "select.exact_runs": 2, "detail": True}
 
 
 def validated(ecfg: Mapping[str, Any]) -> dict[str, Any]:
@@ -73,6 +73,7 @@ def validated(ecfg: Mapping[str, Any]) -> dict[str, Any]:
     for part in ("exact", "screen", "repair"):
         require_bool(f"{part}.reuse", e[part].setdefault("reuse", True))
     require_bool("prune_records", e.setdefault("prune_records", True))
+    require_bool("detail", e.setdefault("detail", ADDED_LATER["detail"]))
     e["records_from"] = records_from(e.get("records_from"))
     from nca_qd.sim.rhcr import planner_options
 
@@ -170,6 +171,7 @@ class Plan:
         self.e, self.d, self.name, self.scales = e, d, name, scales
         self.T, self.seed = int(e["T"]), int(e["seed"])
         self.tasks_smooth, self.progress = int(e["tasks_smooth"]), require_bool("progress", e["progress"])
+        self.detail = bool(e["detail"])  # keep the main runs' tasks per step and tile visits
         sel = e["select"]
         self.select = SelectSettings(
             str(sel["by"]),
@@ -311,20 +313,20 @@ class Plan:
         return int(self.e["exact"][f"sweep_{which}"]) if at is None or n in at else 0
 
     def requests(self, layouts: Mapping[str, EvalLayout]) -> list[Request]:
-        e, ex = self.e, self.e["exact"]
+        e, ex, detail = self.e, self.e["exact"], self.detail
         out: list[Request] = []
         for key, lay in layouts.items():
             if lay.layout is None:
                 continue
             shape = lay.layout.shape
             if shape == self.s_train:
-                out.append(Request("main_train", key, self.n_train, e["runs"]["train"], ex["train"], True))
+                out.append(Request("main_train", key, self.n_train, e["runs"]["train"], ex["train"], detail))
                 out += [
                     Request("sweep_train", key, n, e["sweep"]["train"]["runs"], self._sweep_exact("train", n))
                     for n in self.sweep_train
                 ]
             if shape == self.s_eval and self.scales:
-                out.append(Request("main_eval", key, self.n_eval, e["runs"]["eval"], ex["eval"], True))
+                out.append(Request("main_eval", key, self.n_eval, e["runs"]["eval"], ex["eval"], detail))
                 out += [
                     Request("sweep_eval", key, n, e["sweep"]["eval"]["runs"], self._sweep_exact("eval", n))
                     for n in self.sweep_eval
