@@ -191,7 +191,7 @@ class JsonlRecords:
         """The record of ``key`` in the main file, else in the superseded one, else in another
         folder's (which of them is remembered for :meth:`sources`)."""
         if key in self._runs:
-            rec, origin = self._runs[key], self._origin.get(key, self.path)
+            rec, origin = self._runs[key], self.path  # unless copied here from elsewhere (kept below)
         elif key in self._spare:
             rec, origin = self._spare[key], self.superseded_path
         elif key in self._borrowed:
