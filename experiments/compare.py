@@ -9,8 +9,10 @@ Runs are grouped by domain (with its measures) and algorithm; each group's final
 coverage are reported as mean ± standard error over its runs (``comparison.md``, ``comparison.csv``)
 and drawn over evaluations with 95 % intervals (``comparison.png``). Arms differ by algorithm
 and α. Runs that hold an evaluation (``<run>/evaluation/summary.csv``, ``experiments.evaluate``)
-add the paper's tables 2, 3 and 5 beside its rows (``comparison_evaluation.csv``). See
-:mod:`nca_qd.compare` and :mod:`nca_qd.compare_evaluation`.
+add the paper's tables 2, 3 and 5 beside its rows (``comparison_evaluation.csv``); check folders
+of the runs below the paths (``experiments.evaluate`` with ``select.by=s_eval`` or ``elites=N``)
+add the archives' best generators at S_eval. See :mod:`nca_qd.compare`,
+:mod:`nca_qd.compare_evaluation` and :mod:`nca_qd.compare_top`.
 """
 
 from __future__ import annotations

@@ -332,9 +332,12 @@ def compare(paths: Iterable[str | Path], out: str | Path, name: str = "compariso
     paper's tables 2, 3 and 5 too
     (:mod:`nca_qd.compare_evaluation`, ``<name>_evaluation.csv``) and, where it has curves over
     agent counts, figure 3 with its exact points (:mod:`nca_qd.compare_curves`,
-    ``<name>_agents.png``). Returns the Markdown and the files written."""
+    ``<name>_agents.png``); where check folders of the runs lie below ``paths`` (the archives'
+    best at S_eval, screened or exact, and the two-stage pick), their tables
+    (:mod:`nca_qd.compare_top`). Returns the Markdown and the files written."""
     if not name or Path(name).name != name or name.startswith("."):
         raise NcaQdError(f"name must be a plain file name stem (no folders), got {name!r}")
+    paths = list(paths)
     curves, waiting = read_runs(paths)
     summaries = summarise(curves)
     out = Path(out)
@@ -356,6 +359,7 @@ def compare(paths: Iterable[str | Path], out: str | Path, name: str = "compariso
         variants_markdown,
         write_scaling_csv,
     )
+    from nca_qd.compare_top import find_checks, top_markdown
     from nca_qd.io import atomic_write_text
 
     files = [out / f"{name}.md", out / f"{name}.csv", out / f"{name}.png"]
@@ -366,6 +370,7 @@ def compare(paths: Iterable[str | Path], out: str | Path, name: str = "compariso
     table += profiles_markdown(read_profiles([(c.path, *c.group, c.seed) for c in curves]))
     agent_curves = read_curves(runs)
     table += curves_markdown(agent_curves, f"{name}_agents.png")
+    table += top_markdown(find_checks(paths, runs), out)
     atomic_write_text(files[0], table)
     write_csv(files[1], summaries)
     plot_curves(files[2], summaries)

@@ -47,7 +47,7 @@ import os
 import threading
 import zlib
 from collections import Counter
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -442,6 +442,16 @@ class RepairStore(JsonlRecords):
             return None
         self.add(key, outcome)
         return outcome
+
+    def figures(self) -> Iterator[tuple[np.ndarray, float, int | None]]:
+        """The folder's own repairs (main and superseded files, not ``also``'s): each repaired
+        layout with its similarity Δ and Hamming distance, for reading a folder's figures
+        without the keys that found them (:mod:`nca_qd.compare_top`)."""
+        for rec in {**self._spare, **self._runs}.values():
+            layout = _unpack(rec.get("layout"))
+            if layout is not None:
+                hamming = rec.get("hamming")
+                yield layout, float(rec["similarity"]), None if hamming is None else int(hamming)
 
     def add(self, key: str, outcome: RepairOutcome) -> None:
         """Append one repair that found a layout (flushed and synced)."""
