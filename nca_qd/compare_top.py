@@ -131,9 +131,10 @@ def _selection(check: Check) -> list[dict[str, Any]]:
 
 
 def _screened_flowing(row: Mapping[str, Any]) -> tuple[int, int]:
-    n = int(num(row.get("screen_runs")) or 0) if row.get("screen_runs") else 0
+    """A candidate's screened runs that flowed, and its screened runs."""
+    n = 0 if not row.get("screen_runs") else int(num(row["screen_runs"]))
     rate = num(row.get("screen_success_rate"))
-    return (round(rate * n) if n and not math.isnan(rate) else 0), n
+    return (0 if n == 0 or math.isnan(rate) else round(rate * n)), n
 
 
 def _median_range(values: Sequence[float], fmt: str) -> str:
@@ -199,24 +200,23 @@ def pick_row(check: Check) -> dict[str, Any]:
     rows = read_csv(check.folder / "selection.csv")
     picked = next((r["cell"] for r in rows if str(r.get("selected")).lower() == "true"), None)
     runs = _exact_runs(check.folder).get(str(picked), []) if picked is not None else []
-    tp = [
-        num(r.get("throughput_mean"))
-        for r in read_csv(check.folder / "summary.csv")
-        if r.get("which") == "eval" and r.get("simulator") == "rhcr" and str(r.get("cell")) == str(picked)
-    ]
-    se = [
-        num(r.get("throughput_se"))
-        for r in read_csv(check.folder / "summary.csv")
-        if r.get("which") == "eval" and r.get("simulator") == "rhcr" and str(r.get("cell")) == str(picked)
-    ]
+    row = next(
+        (
+            r
+            for r in read_csv(check.folder / "summary.csv")
+            if r.get("which") == "eval" and r.get("simulator") == "rhcr" and str(r.get("cell")) == str(picked)
+        ),
+        None,
+    )
+    best = max(rows, key=lambda r: num(r.get("objective_s")), default=None)
     return {
         "run": check.label,
         "pool": len(rows),
-        "s_best": rows[0]["cell"] if rows else None,
+        "s_best": None if best is None else best["cell"],
         "picked": picked,
         "flowing": sum(runs),
         "runs": len(runs),
-        "throughput": (tp[0], se[0] if se else float("nan")) if tp else None,
+        "throughput": None if row is None else (num(row["throughput_mean"]), num(row["throughput_se"])),
         "folder": check.folder,
     }
 
@@ -283,7 +283,7 @@ def top_markdown(checks: Sequence[Check], base: Path | None = None) -> str:
         md += _table(
             "The two-stage pick (screen, then exact runs of the screen's best)",
             ["run", "pool", "S-best", "picked", "its exact runs at S_eval flowing"]
-            + ["throughput ± s.e.", "folder"],
+            + ["throughput (all its runs) ± s.e.", "folder"],
             [
                 [p["run"], p["pool"], p["s_best"], p["picked"], f"{p['flowing']} of {p['runs']}"]
                 + ["—" if p["throughput"] is None else f"{p['throughput'][0]:.2f} ± {p['throughput'][1]:.2f}"]

@@ -86,7 +86,7 @@ def test_the_archives_best_are_counted_from_each_check_folders_files(tmp_path):
         pool=3,
         exact_top=3,
         files={
-            "selection.csv": "\n".join(sel) + "\n",
+            "selection.csv": "\n".join([sel[0], *sel[:0:-1]]) + "\n",  # not in S order: the S-best found
             "runs.csv": _runs_csv({13: [True, True, True]}),
             "summary.csv": summary,
         },
