@@ -248,14 +248,47 @@ def paper_row(group: tuple[str, str], evaluations: float) -> str:
     return text
 
 
+# Issue 55's bound for table 4: a QD-score more than 2 standard errors of the difference from
+# the paper's mean differs.
+QD_SE_BOUND = 2.0
+
+
+def qd_against_paper(summary: GroupSummary) -> str:
+    """Whether the group's final QD-score is within :data:`QD_SE_BOUND` standard errors of the
+    difference from the paper's mean ("within"), or by how much it is not ("differs: ...");
+    "—" where :func:`paper_row` sets no comparable row beside it (another agent's measure, a
+    reduced DSAGE, another budget, no paper row). The error of the difference is
+    sqrt(se_ours² + se_paper²); a single run has no s.e. of its own, so the paper's spread of
+    one run stands for it (its s.e. times sqrt(5), the paper's runs)."""
+    domain, label = summary.group
+    algorithm, _, agent = label.partition(", agent ")
+    paper = PAPER_TABLE.get((domain, algorithm))
+    budget = PAPER_EVALUATIONS.get(domain.split(" (")[0])
+    if (
+        paper is None
+        or (agent and not agent.startswith("paper_accel_search"))
+        or (budget is not None and abs(summary.evaluations - budget) > 0.01 * budget)
+    ):
+        return "—"
+    (p_mean, p_se), ours = paper[0], summary.final["qd_score"]
+    own_se = ours[1] if len(summary.runs) > 1 else p_se * math.sqrt(5)
+    se = math.hypot(own_se, p_se)
+    if se <= 0:
+        return "—"
+    gap = (ours[0] - p_mean) / se
+    if abs(gap) <= QD_SE_BOUND:
+        return "within"
+    return f"differs: QD-score {ours[0] - p_mean:+,.0f} ({gap:+.1f} s.e.)"
+
+
 def table_markdown(summaries: Sequence[GroupSummary]) -> str:
     """The paper's appendix table: domain, algorithm, runs, evaluations, QD-score, coverage,
     and the paper's figures for the same domain and algorithm (— where it has none;
     :func:`paper_row`). A single run has no standard error: its figures stand alone."""
     lines = [
         "| Domain | Algorithm | Runs (seeds) | Evaluations | QD-score | Archive coverage "
-        "| Paper: QD-score / coverage (5 runs) |",
-        "|---|---|---|---|---|---|---|",
+        "| Paper: QD-score / coverage (5 runs) | Against the paper (QD-score, issue 55's 2 s.e.) |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for s in summaries:
         seeds = ",".join(str(r.seed) for r in sorted(s.runs, key=lambda r: r.seed))
@@ -266,7 +299,7 @@ def table_markdown(summaries: Sequence[GroupSummary]) -> str:
             ours = f"{q[0]:,.2f} | {c[0]:.3f}"
         lines.append(
             f"| {s.group[0]} | {s.group[1]} | {len(s.runs)} ({seeds}) | {s.evaluations:,.0f} "
-            f"| {ours} | {paper_row(s.group, s.evaluations)} |"
+            f"| {ours} | {paper_row(s.group, s.evaluations)} | {qd_against_paper(s)} |"
         )
     return "\n".join(lines) + "\n"
 

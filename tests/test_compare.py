@@ -45,12 +45,19 @@ def test_runs_are_grouped_and_summarised_as_mean_and_standard_error(tmp_path):
     assert rows[2].startswith("| maze (n_walls+path_length) | dsage | 1 (0) | 864 | 40.00 | 0.400 |")
     # the paper's row beside ours (its appendix table), none for a group it did not run, and
     # its budget named where the runs' differs (the maze's rows are at 100,000 evaluations)
-    budget = " (at 100,000 evaluations: not this run's budget) |"
+    budget = " (at 100,000 evaluations: not this run's budget) | — |"  # and no verdict
     assert rows[1].endswith("| 22,299.00 ± 612.46 / 0.54 ± 0.01" + budget)
     assert rows[0].endswith("| 1,444.20 ± 52.60 / 0.09 ± 0.00" + budget)
     _fake_run(tmp_path / "full", "map_elites", 0, [(50000, 5, 0.1), (100000, 6000, 0.3)])
     table, _ = compare([tmp_path / "full"], tmp_path / "out")
-    assert table.splitlines()[2].endswith("| 6,000.00 | 0.300 | 12,446.80 ± 2,207.08 / 0.30 ± 0.05 |")
+    # one run against the paper's five: within 2 s.e. of the difference (the paper's spread of
+    # one run, 2,207.08 × √5, and its s.e.: 6,446.80 / 5,406.2 = 1.2 s.e.)
+    row = table.splitlines()[2]
+    assert row.endswith("| 6,000.00 | 0.300 | 12,446.80 ± 2,207.08 / 0.30 ± 0.05 | within |")
+    _fake_run(tmp_path / "high", "cma_mae", 0, [(100000, 30000, 0.6)])
+    table, _ = compare([tmp_path / "high"], tmp_path / "out")
+    # 7,701 above the paper's 22,299 ± 612.46: 7,701 / (612.46 × √6) = 5.1 s.e.
+    assert table.splitlines()[2].endswith("/ 0.54 ± 0.01 | differs: QD-score +7,701 (+5.1 s.e.) |")
 
 
 def test_a_search_under_way_is_a_row_of_its_own(tmp_path):
@@ -65,7 +72,7 @@ def test_a_search_under_way_is_a_row_of_its_own(tmp_path):
     rows = {r.split(" | ")[1]: r for r in table.splitlines() if r.startswith("| maze")}
     assert sorted(rows) == ["cma_mae", "cma_mae (in progress: seed 1, 50,000 of 100,000)"]
     assert " 1 (0) | 100,000 | 22,000.00 | 0.500 | 22,299.00" in rows["cma_mae"]
-    assert rows["cma_mae (in progress: seed 1, 50,000 of 100,000)"].endswith("| 9,000.00 | 0.250 | — |")
+    assert rows["cma_mae (in progress: seed 1, 50,000 of 100,000)"].endswith("| 9,000.00 | 0.250 | — | — |")
 
 
 def test_a_curve_is_what_the_archive_held_after_each_iteration(tmp_path):
@@ -113,7 +120,8 @@ def test_arms_that_differ_in_alpha_are_not_pooled(tmp_path):
     rows = [line for line in table.splitlines() if line.startswith("| warehouse_even")]
     assert len(rows) == 2
     assert rows[0].startswith("| warehouse_even (entropy+shelf_components) | cma_mae α=5 | 2 (0,1) |")
-    assert "20,500.00 ± 500.00" in rows[0] and rows[0].endswith("| 20,366.07 ± 653.46 / 0.33 ± 0.01 |")
+    assert "20,500.00 ± 500.00" in rows[0]
+    assert rows[0].endswith("| 20,366.07 ± 653.46 / 0.33 ± 0.01 | within |")
     assert rows[1].startswith("| warehouse_even (entropy+shelf_components) | cma_mae α=0 | 1 (0) |")
     assert "20,366.07" not in rows[1]
 
@@ -165,8 +173,9 @@ def test_a_reduced_dsage_is_its_own_arm_and_says_what_it_cut(tmp_path):
     )
     assert sorted(rows) == ["dsage", label]
     assert " 2 (0,1) " in rows[label] and " 1 (0) " in rows["dsage"]
-    assert rows[label].endswith("| 1,444.20 ± 52.60 / 0.09 ± 0.00 (DSAGE's full settings) |")
-    assert rows["dsage"].endswith("| 1,444.20 ± 52.60 / 0.09 ± 0.00 |")
+    assert rows[label].endswith("| 1,444.20 ± 52.60 / 0.09 ± 0.00 (DSAGE's full settings) | — |")
+    # 1,000 against 1,444.20 ± 52.60: -444.2 / (52.60 × √6) = -3.4 s.e.
+    assert rows["dsage"].endswith("| 1,444.20 ± 52.60 / 0.09 ± 0.00 | differs: QD-score -444 (-3.4 s.e.) |")
 
 
 def test_a_warehouse_dsage_is_never_the_papers_row(tmp_path):
@@ -186,7 +195,7 @@ def test_a_warehouse_dsage_is_never_the_papers_row(tmp_path):
     label = row.split(" | ")[1]
     assert label.startswith("dsage α=5 (not the paper's: lacks the mutation that keeps N_s shelves")
     assert label.endswith("the surrogate of the repaired layout; inner.batch_size 30 for 10)")
-    assert "914.60" not in row and row.endswith("| — |")
+    assert "914.60" not in row and row.endswith("| — | — |")
 
 
 SUMMARY_HEAD = (
