@@ -19,6 +19,7 @@ from the folder's repair records (``repairs.jsonl[.gz]``), matched by the repair
 from __future__ import annotations
 
 import json
+import logging
 import math
 from collections import defaultdict
 from collections.abc import Mapping, Sequence
@@ -27,9 +28,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 from omegaconf import OmegaConf
+from omegaconf.errors import OmegaConfBaseException
 
 from nca_qd.compare_evaluation import num, read_csv
+
+log = logging.getLogger(__name__)
 
 CONFIG = "evaluate_config.yaml"
 # the files each kind of check is read from (all written when its evaluation finished)
@@ -84,7 +89,11 @@ def find_checks(paths: Sequence[str | Path], runs: Sequence[tuple[Path, str, int
             if folder.resolve() in seen:
                 continue
             seen.add(folder.resolve())
-            cfg = OmegaConf.to_container(OmegaConf.load(cfg_file), resolve=True)
+            try:
+                cfg = OmegaConf.to_container(OmegaConf.load(cfg_file), resolve=True)
+            except (OSError, ValueError, yaml.YAMLError, OmegaConfBaseException) as exc:  # not a check
+                log.warning("%s: not read (%s); left out of the archives' best", cfg_file, exc)
+                continue
             if not isinstance(cfg, dict) or "run_dir" not in cfg:
                 continue
             kind = _kind(cfg)

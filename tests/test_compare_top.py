@@ -97,6 +97,8 @@ def test_the_archives_best_are_counted_from_each_check_folders_files(tmp_path):
     _check(checks / "a5", root / "a5", by="s_eval", pool=20)
     elsewhere = tmp_path / "elsewhere" / "a9"
     _check(checks / "other", elsewhere, elites=10, exact_eval=2, files={"runs.csv": RUNS_HEAD})
+    (checks / "broken").mkdir()
+    (checks / "broken" / "evaluate_config.yaml").write_text("run_dir: [unclosed\n")  # warned, skipped
 
     table, _ = compare([root], tmp_path / "out")
 
