@@ -231,21 +231,32 @@ def paper_row(group: tuple[str, str], evaluations: float) -> str:
     (``paper_accel_search``: the agent behind the paper's rows), not by other weights; with the
     paper's budget beside it where the run's differs (a 10,000-evaluation run is not set beside
     a 100,000 row unmarked); a reduced DSAGE's row says the paper's ran at DSAGE's settings."""
-    domain, label = group
-    algorithm, _, agent = label.partition(", agent ")
-    if agent and not agent.startswith("paper_accel_search"):
-        return "—"
-    algorithm, reduced, _ = algorithm.partition(" (reduced: ")
-    paper = PAPER_TABLE.get((domain, algorithm))
+    paper, reduced = _paper_qd(group)
     if paper is None:
         return "—"
     text = f"{paper[0][0]:,.2f} ± {paper[0][1]:,.2f} / {paper[1][0]:.2f} ± {paper[1][1]:.2f}"
     if reduced:
         text += " (DSAGE's full settings)"
-    budget = PAPER_EVALUATIONS.get(domain.split(" (")[0])
-    if budget is not None and abs(evaluations - budget) > 0.01 * budget:
-        text += f" (at {budget:,} evaluations: not this run's budget)"
+    if not _paper_budget(group, evaluations):
+        text += f" (at {PAPER_EVALUATIONS[group[0].split(' (')[0]]:,} evaluations: not this run's budget)"
     return text
+
+
+def _paper_qd(group: tuple[str, str]) -> tuple[tuple[tuple[float, float], tuple[float, float]] | None, bool]:
+    """The paper's table 4 entry for a group (None where its agent's measure is not the
+    paper's, or the paper has none) and whether the group is a reduced DSAGE of it."""
+    domain, label = group
+    algorithm, _, agent = label.partition(", agent ")
+    if agent and not agent.startswith("paper_accel_search"):
+        return None, False
+    algorithm, reduced, _ = algorithm.partition(" (reduced: ")
+    return PAPER_TABLE.get((domain, algorithm)), bool(reduced)
+
+
+def _paper_budget(group: tuple[str, str], evaluations: float) -> bool:
+    """Whether a group ran the paper's budget of evaluations (within 1 %; true where unknown)."""
+    budget = PAPER_EVALUATIONS.get(group[0].split(" (")[0])
+    return budget is None or abs(evaluations - budget) <= 0.01 * budget
 
 
 # Issue 55's bound for table 4: a QD-score more than 2 standard errors of the difference from
@@ -260,15 +271,8 @@ def qd_against_paper(summary: GroupSummary) -> str:
     reduced DSAGE, another budget, no paper row). The error of the difference is
     sqrt(se_ours² + se_paper²); a single run has no s.e. of its own, so the paper's spread of
     one run stands for it (its s.e. times sqrt(5), the paper's runs)."""
-    domain, label = summary.group
-    algorithm, _, agent = label.partition(", agent ")
-    paper = PAPER_TABLE.get((domain, algorithm))
-    budget = PAPER_EVALUATIONS.get(domain.split(" (")[0])
-    if (
-        paper is None
-        or (agent and not agent.startswith("paper_accel_search"))
-        or (budget is not None and abs(summary.evaluations - budget) > 0.01 * budget)
-    ):
+    paper, reduced = _paper_qd(summary.group)
+    if paper is None or reduced or not _paper_budget(summary.group, summary.evaluations):
         return "—"
     (p_mean, p_se), ours = paper[0], summary.final["qd_score"]
     own_se = ours[1] if len(summary.runs) > 1 else p_se * math.sqrt(5)

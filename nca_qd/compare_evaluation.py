@@ -173,8 +173,13 @@ def against_paper(row: Mapping[str, Any], paper: Scaling | None) -> str:
     return "differs: " + "; ".join(found) if found else "within"
 
 
-def _paper_scaling(domain: str, label: str) -> str:
+def _set_paper(row: dict[str, Any], domain: str, label: str) -> None:
+    """The paper's figures for ``label`` beside ``row``, and the row's verdict against them."""
     p = _paper(domain, label)
+    row["paper"], row["against_paper"] = _fmt_paper(p), against_paper(row, p)
+
+
+def _fmt_paper(p: Scaling | None) -> str:
     if p is None:
         return "—"
     parts = []
@@ -195,8 +200,7 @@ def scaling_rows(arms: Sequence[Arm]) -> list[dict[str, Any]]:
             if kind == "tiling" and not cells["eval"].get("runs"):
                 continue
             out.append({"domain": arm.domain, "layout": label, "seeds": seeds, **_cells(cells)})
-            out[-1]["paper"] = _paper_scaling(arm.domain, label)
-            out[-1]["against_paper"] = against_paper(out[-1], _paper(arm.domain, label))
+            _set_paper(out[-1], arm.domain, label)
         draws = [r for s in seeds for r in _rows(arm.seeds[s], "tiling", "eval")]
         if len(draws) > len(seeds):  # baselines.tiling_draws > 1: the spread over the repair's draws
             cell = {**scaling_cell(draws), "unit": "repair draws"}
@@ -207,17 +211,14 @@ def scaling_rows(arms: Sequence[Arm]) -> list[dict[str, Any]]:
             )
             if rates:
                 out[-1]["text_eval"] += f"; per draw {', '.join(f'{100 * x:.0f}' for x in rates)} %"
-            tiling = f"tiling of {arm.algorithm}"
-            out[-1]["paper"] = _paper_scaling(arm.domain, tiling)
-            out[-1]["against_paper"] = against_paper(out[-1], _paper(arm.domain, tiling))
+            _set_paper(out[-1], arm.domain, f"tiling of {arm.algorithm}")
         if arm.domain not in humans_done:
             rows = arm.seeds[seeds[0]]
             cells = {w: scaling_cell([_row(rows, "human", w)]) for w in WHICH}
             if any(c.get("runs") for c in cells.values()):
                 humans_done.add(arm.domain)
                 out.append({"domain": arm.domain, "layout": "human", "seeds": seeds[:1], **_cells(cells)})
-                out[-1]["paper"] = _paper_scaling(arm.domain, "human")
-                out[-1]["against_paper"] = against_paper(out[-1], _paper(arm.domain, "human"))
+                _set_paper(out[-1], arm.domain, "human")
     return out
 
 
