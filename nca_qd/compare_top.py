@@ -18,7 +18,6 @@ from the folder's repair records (``repairs.jsonl[.gz]``), matched by the repair
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 from collections import defaultdict
@@ -33,6 +32,7 @@ from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
 from nca_qd.compare_evaluation import num, read_csv
+from nca_qd.io import load_map
 
 log = logging.getLogger(__name__)
 
@@ -51,9 +51,7 @@ class Check:
 
     kind: str
     folder: Path
-    run: Path
     label: str
-    config: dict[str, Any]
 
 
 def _kind(cfg: Mapping[str, Any]) -> str | None:
@@ -100,7 +98,7 @@ def find_checks(paths: Sequence[str | Path], runs: Sequence[tuple[Path, str, int
             match = next((r for r in runs if _same_run(r[0], str(cfg["run_dir"]))), None)
             if kind is None or match is None or not all((folder / f).is_file() for f in NEEDS[kind]):
                 continue  # not a check, not of a compared run, or one still under way
-            checks.append(Check(kind, folder, match[0], f"{match[1]}, seed {match[2]}", cfg))
+            checks.append(Check(kind, folder, f"{match[1]}, seed {match[2]}"))
     return sorted(checks, key=lambda c: (c.label, str(c.folder)))
 
 
@@ -133,7 +131,7 @@ def _selection(check: Check) -> list[dict[str, Any]]:
             f = check.folder / str(r.get("file") or "")
             if not f.is_file():
                 continue
-            layout = np.array([list(row) for row in json.loads(f.read_text())["layout"]])
+            layout = np.array([list(row) for row in load_map(f).rows])
             if (hit := figures.get(_canonical(layout))) is not None:
                 r["similarity"], r["hamming"] = f"{hit[0]:.6f}", f"{hit[1]:.0f}"
     return rows
