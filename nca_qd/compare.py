@@ -29,7 +29,7 @@ from nca_qd.paper import (
 )
 from nca_qd.paper import QD_EVALUATIONS as PAPER_EVALUATIONS
 from nca_qd.paper import QD_TABLE as PAPER_TABLE
-from nca_qd.run_dir import METRICS_FILE, load_run_config
+from nca_qd.run_dir import ELITES_FILE, METRICS_FILE, load_run_config
 
 METRICS = ("qd_score", "coverage")
 
@@ -62,6 +62,7 @@ def read_run(run_dir: str | Path) -> RunCurve:
         rows = list(csv.DictReader(fh))
     if not rows:
         raise NotStarted(f"{run_dir}: {METRICS_FILE} has no iterations yet")
+    check_against_record(run_dir, cfg, rows[-1])
     measures = "+".join(cfg.domain.measures.names)
     evaluations = np.asarray([float(r["evaluations"]) for r in rows])
     label = algorithm_label(cfg)
@@ -77,6 +78,25 @@ def read_run(run_dir: str | Path) -> RunCurve:
         evaluations=evaluations,
         values={m: np.asarray([float(r[m]) for r in rows]) for m in METRICS},
     )
+
+
+def check_against_record(run_dir: Path, cfg, last: dict[str, str]) -> None:
+    """Where a run ships its elites record (written with its archives at the end), its last
+    metrics row must be that archive's: QD-score (sum of objective minus the domain's lower
+    bound) and coverage recounted from the record, independently of the search's own sums."""
+    path = run_dir / ELITES_FILE
+    if not path.is_file():
+        return
+    with np.load(path) as record:
+        objective, n_cells = record["objective"].astype(np.float64), int(np.prod(record["grid_cells"]))
+    offset = float(cfg.domain.objective_range[0])
+    qd, coverage = float((objective - offset).sum()), objective.size / n_cells
+    said_qd, said_cov = float(last["qd_score"]), float(last["coverage"])
+    if not (math.isclose(qd, said_qd, rel_tol=1e-5, abs_tol=1e-2) and abs(coverage - said_cov) < 1e-6):
+        raise NcaQdError(
+            f"{run_dir}: {METRICS_FILE}'s last row (QD-score {said_qd:,.2f}, coverage {said_cov:.6f}) "
+            f"is not its {ELITES_FILE}'s archive (QD-score {qd:,.2f}, coverage {coverage:.6f})"
+        )
 
 
 def algorithm_label(cfg) -> str:

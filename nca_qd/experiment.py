@@ -24,6 +24,10 @@ A run directory holds
 * ``archive_result.npz`` / ``archive_opt.npz``: both archives as their elites
   (:mod:`nca_qd.qd.archive_io`), written at the end (:func:`load_archive` reads a running
   run's checkpoint instead);
+* ``elites.npz`` (``output.kept_elites`` > 0): the result archive's elites record
+  (:func:`nca_qd.qd.archive_io.save_elites_record`: every elite's objective and measures, the
+  parameters of the best ``output.kept_elites``), written with the archives — what a run ships
+  when its archives and snapshot are too large to (the maze table's runs);
 * pictures: ``archive_result.png``, ``archive_opt.png``, ``curves.png``, ``best_train.png`` and
   ``best_eval.png`` (the same generators at the training and the evaluation size) and, for
   domains with repair, ``best_train_repaired.png`` / ``best_eval_repaired.png``.
@@ -56,6 +60,7 @@ from nca_qd.qd.loop import QDLoop, QDState, archive_spec, make_emitter
 from nca_qd.run_dir import (  # re-exported: readers of a run directory used to find them here
     CHECKPOINT_FILE,
     CONFIG_FILE,
+    ELITES_FILE,
     LEGACY_CHECKPOINT_FILE,
     METRICS_FILE,
     SNAPSHOT_FILE,
@@ -171,6 +176,9 @@ def validate_config(cfg: DictConfig) -> None:
     for path in ("qd.progress", "output.pictures", "output.repaired"):
         if OmegaConf.select(cfg, path) is not None:
             require_bool(path, OmegaConf.select(cfg, path))
+    kept = OmegaConf.select(cfg, "output.kept_elites", default=0)
+    if isinstance(kept, bool) or not isinstance(kept, int) or kept < 0:
+        raise NcaQdError(f"output.kept_elites must be an integer >= 0, got {kept!r}")
     lr = OmegaConf.select(cfg, "qd.archive.learning_rate")
     if not isinstance(lr, (int, float)) or not 0 <= lr <= 1:
         raise NcaQdError(f"qd.archive.learning_rate must be in [0, 1], got {lr!r}")
@@ -463,14 +471,24 @@ class Experiment:
 
     # --- outputs -------------------------------------------------------------------------
     def write_outputs(self, state: QDState) -> None:
-        """Both archives as ``.npz`` and, unless ``output.pictures=false``, every picture
-        (:mod:`nca_qd.run_pictures`)."""
+        """Both archives as ``.npz``, the elites record and, unless ``output.pictures=false``,
+        every picture (:mod:`nca_qd.run_pictures`)."""
         spec = self.loop.spec
         views = {}
         for which, archive in (("result", state.res_archive), ("opt", state.opt_archive)):
             elites = checkpoint.archive_elites(archive)
             archive_io.save_archive(self.run_dir / f"archive_{which}.npz", elites, spec.cells, spec.ranges)
             views[which] = archive_io.archive_view(elites, spec.cells, spec.ranges)
+            # A configuration saved before the record existed has no kept_elites: none written.
+            n_kept = int(OmegaConf.select(self.cfg, "output.kept_elites", default=0))
+            if which == "result" and n_kept:
+                objective = views[which]["objective"]  # kept too: the elites the pictures draw
+                kept = np.union1d(
+                    select_elites(objective, n_kept), select_elites(objective, self.cfg.output.n_best)
+                )
+                archive_io.save_elites_record(
+                    self.run_dir / ELITES_FILE, elites, kept, spec.cells, spec.ranges
+                )
         if self.cfg.output.pictures:
             from nca_qd.run_pictures import write_run_pictures
 

@@ -26,6 +26,7 @@ log = logging.getLogger("nca_qd.run")
 CONFIG_FILE, METRICS_FILE, CHECKPOINT_FILE = "config.yaml", "metrics.csv", "checkpoint.npz"
 LEGACY_CHECKPOINT_FILE = "checkpoint.msgpack"  # dense msgpack of earlier versions
 SNAPSHOT_FILE = "snapshot.npz"  # portable: the state a fresh clone resumes from
+ELITES_FILE = "elites.npz"  # the result archive's figures and its best generators (archive_io)
 
 # Settings added after runs had been saved, each with the value that a saved configuration
 # without it ran with. The YAML holds the one default of new runs; :func:`migrate` gives an old
@@ -117,7 +118,9 @@ def load_archive(run_dir: str | Path, which: str = "result") -> dict[str, Any]:
 
     A finished run has ``archive_<which>.npz``; a run still in progress (or interrupted) has
     only its checkpoint, whose archive is read instead — so a long search can be evaluated,
-    rendered or explored while it goes on, without stopping it."""
+    rendered or explored while it goes on, without stopping it. A run shipped without its
+    archives or snapshot (the maze table's) has its result archive's elites record
+    (``elites.npz``): every elite's figures, the parameters of its best few only."""
     path = Path(run_dir) / f"archive_{which}.npz"
     if path.is_file():
         return archive_io.read_archive(path)
@@ -125,12 +128,25 @@ def load_archive(run_dir: str | Path, which: str = "result") -> dict[str, Any]:
     if not ckpt.is_file() and (Path(run_dir) / SNAPSHOT_FILE).is_file():
         ckpt = Path(run_dir) / SNAPSHOT_FILE
     legacy = Path(run_dir) / LEGACY_CHECKPOINT_FILE
+    record = Path(run_dir) / ELITES_FILE
+    if not ckpt.is_file() and not legacy.is_file() and which == "result" and record.is_file():
+        log.info("%s: result archive read from %s (generators of its best elites only)", run_dir, ELITES_FILE)
+        return archive_io.read_archive(record)
     if not ckpt.is_file() and not legacy.is_file():
         raise NcaQdError(f"{path} not found and no {CHECKPOINT_FILE} beside it ({_why_no_archive(run_dir)})")
     archive, iteration = archive_from_checkpoint(ckpt if ckpt.is_file() else legacy, which)
     source = ckpt if ckpt.is_file() else legacy
     log.info("%s: %s archive read from %s (iteration %d)", run_dir, which, source.name, iteration)
     return archive
+
+
+def archives_held(run_dir: str | Path) -> tuple[str, ...]:
+    """The archives :func:`load_archive` can read in ``run_dir``: both, unless the run holds
+    only its elites record (the result archive's figures and best generators)."""
+    d = Path(run_dir)
+    names = ("archive_opt.npz", CHECKPOINT_FILE, SNAPSHOT_FILE, LEGACY_CHECKPOINT_FILE)
+    whole = any((d / n).is_file() for n in names)
+    return ("result", "opt") if whole or not (d / ELITES_FILE).is_file() else ("result",)
 
 
 def archive_from_checkpoint(path: str | Path, which: str = "result") -> tuple[dict[str, Any], int]:

@@ -20,9 +20,7 @@ from omegaconf import DictConfig
 from nca_qd.domains import Domain, make_domain
 from nca_qd.pipeline import generate, make_generator
 from nca_qd.qd.loop import archive_spec
-from nca_qd.run_dir import METRICS_FILE, load_archive, select_elites
-
-ARCHIVES = ("result", "opt")
+from nca_qd.run_dir import METRICS_FILE, archives_held, load_archive, select_elites
 
 
 def write_run_pictures(
@@ -37,12 +35,13 @@ def write_run_pictures(
     default); returns the files written.
 
     ``archives`` maps ``result`` / ``opt`` to archive views (read from ``run_dir`` when not
-    given); ``domain`` and ``generator`` are built from ``cfg`` when not given."""
+    given: both, or the result archive alone from a run that ships only its elites record);
+    ``domain`` and ``generator`` are built from ``cfg`` when not given."""
     run_dir = Path(run_dir)
     out = Path(out_dir) if out_dir is not None else run_dir
     out.mkdir(parents=True, exist_ok=True)
     if archives is None:
-        archives = {which: load_archive(run_dir, which) for which in ARCHIVES}
+        archives = {which: load_archive(run_dir, which) for which in archives_held(run_dir)}
     domain = domain if domain is not None else make_domain(cfg.domain)
     generator = generator if generator is not None else make_generator(domain, cfg.algo.name)
     written = draw_archives(out, cfg, archives, domain.name)

@@ -464,3 +464,26 @@ def test_a_row_is_set_against_the_papers_by_issue_55s_bounds():
     assert against_paper({**row, "success_eval": 0.10}, jams) == "within"
     assert against_paper(row, None) == "—"
     assert against_paper({"success_s": float("nan"), "success_eval": float("nan")}, paper) == "—"
+
+
+def test_a_runs_last_row_is_checked_against_its_elites_record(tmp_path):
+    """A run that ships elites.npz (the maze table's): the QD-score and coverage recounted from
+    the record's archive must be its metrics' last row; a row that is not is one clear error."""
+    from nca_qd.qd.archive_io import save_elites_record
+
+    objective = np.asarray([1.0, 0.0, 1.0, 1.0], np.float32)
+    elites = {
+        "cells": np.asarray([3, 7, 40, 41]),
+        "objective": objective,
+        "measures": np.zeros((4, 2), np.float32),
+        "thresholds": objective,
+        "genotypes": np.ones((4, 5), np.float32),
+    }
+    for name, qd in (("agrees", 3), ("differs", 4)):
+        _fake_run(tmp_path / name, "cma_mae", 0, [(150, 1, 0.01), (300, qd, 4 / 100)])
+        with (tmp_path / name / "config.yaml").open("a") as fh:
+            fh.write("  objective_range: [0.0, 1.0]\n")
+        save_elites_record(tmp_path / name / "elites.npz", elites, [3], [10, 10], [[0, 1], [0, 1]])
+    assert read_run(tmp_path / "agrees").values["qd_score"][-1] == 3
+    with pytest.raises(NcaQdError, match=r"row \(QD-score 4.00, coverage 0.040000\) is not its elites"):
+        read_run(tmp_path / "differs")

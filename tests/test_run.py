@@ -23,6 +23,7 @@ OUTPUTS = [
     "checkpoint.npz",
     "archive_result.npz",
     "archive_opt.npz",
+    "elites.npz",
     "archive_result.png",
     "archive_opt.png",
     "curves.png",
@@ -504,3 +505,93 @@ def test_a_run_without_its_archive_says_whether_it_ran(tmp_path):
         fh.write("1,150,10,0.1\n2,300,20,0.2\n")
     with pytest.raises(NcaQdError, match="records 2 iterations, so its archive was not kept here: re-run it"):
         load_archive(tmp_path)
+
+
+def test_the_elites_record_ships_the_archives_figures_and_its_best_generators(
+    full_run, tmp_path, capsys, monkeypatch
+):
+    """A run shipped with config, metrics and elites.npz only (the maze table's): the result
+    archive reads back cell for cell from it (every elite's objective and measures), its kept
+    generators grow the same layouts, a generator it did not keep is one clear line, and its
+    pictures are drawn from it."""
+    import shutil
+
+    from experiments import render as render_cli
+    from nca_qd.api import load_generator
+    from nca_qd.errors import NcaQdError
+    from nca_qd.qd import archive_io
+    from nca_qd.run_dir import load_archive
+
+    run_dir, _, _ = full_run
+    whole = load_archive(run_dir)
+    occupied = np.flatnonzero(np.isfinite(whole["objective"]))
+    # the run's own record: every elite (fewer than kept_elites), each generator exact
+    own = load_archive(_shipped(run_dir, tmp_path / "own", "elites.npz"))
+    np.testing.assert_array_equal(own["objective"], whole["objective"])
+    np.testing.assert_array_equal(
+        np.asarray(own["genotypes"][occupied]), np.asarray(whole["genotypes"][occupied])
+    )
+    # a record keeping two elites, as a large archive's would keep 64 of thousands
+    best = int(np.argmax(whole["objective"]))
+    rest = [int(c) for c in occupied if c != best]
+    assert len(rest) >= 2
+    other = rest[0]
+    kept_dir = tmp_path / "kept"
+    kept_dir.mkdir()
+    for name in ("config.yaml", "metrics.csv"):
+        shutil.copy(run_dir / name, kept_dir / name)
+    with np.load(run_dir / "archive_result.npz") as z:
+        elites = {k: z[k] for k in z.files}
+    archive_io.save_elites_record(
+        kept_dir / "elites.npz", elites, [best, rest[-1]], [256, 162], [[0, 1], [0, 1]]
+    )
+    record = load_archive(kept_dir)
+    np.testing.assert_array_equal(record["objective"], whole["objective"])
+    np.testing.assert_array_equal(record["measures"], whole["measures"])
+    assert _qd_score(record) == pytest.approx(float(_metrics(run_dir)[-1]["qd_score"]), abs=1e-3)
+    np.testing.assert_array_equal(load_generator(kept_dir).layout(), load_generator(run_dir).layout())
+    with pytest.raises(
+        NcaQdError, match=f"keeps the generators of 2 of {occupied.size} elites, not of cell {other}"
+    ):
+        load_generator(kept_dir, other)
+    with pytest.raises(NcaQdError, match="hold no elite"):
+        archive_io.save_elites_record(
+            tmp_path / "x.npz",
+            elites,
+            [int(np.flatnonzero(~np.isfinite(whole["objective"]))[0])],
+            [256, 162],
+            [[0, 1], [0, 1]],
+        )
+    # pictures from the record: the result archive and the elites it kept (n_best=2 here)
+    monkeypatch.setattr(
+        sys, "argv", ["render", f"run={_shipped(run_dir, tmp_path / 'pics', 'elites.npz')}", "pictures=true"]
+    )
+    with pytest.raises(SystemExit) as exc:
+        main_guard(render_cli.main)()
+    assert exc.value.code == 0
+    drawn = sorted(Path(p).name for p in capsys.readouterr().out.split())
+    assert drawn == ["archive_result.png", "best_eval.png", "best_train.png", "curves.png"]
+    assert (tmp_path / "pics" / "best_train.png").read_bytes() == (run_dir / "best_train.png").read_bytes()
+
+
+def _shipped(run_dir, to, *names):
+    """A copy of what a shipped run keeps: config, metrics and ``names``."""
+    import shutil
+
+    to.mkdir()
+    for name in ("config.yaml", "metrics.csv", *names):
+        shutil.copy(run_dir / name, to / name)
+    return to
+
+
+def _qd_score(archive):
+    """QD-score as the paper counts it for the maze (its objective is 0/1: offset 0)."""
+    objective = np.asarray(archive["objective"])
+    return float(objective[np.isfinite(objective)].sum())
+
+
+def test_kept_elites_is_checked(tmp_path):
+    from nca_qd.errors import NcaQdError
+
+    with pytest.raises(NcaQdError, match="output.kept_elites must be an integer >= 0, got -1"):
+        Experiment(_cfg("output.kept_elites=-1"), tmp_path / "run")

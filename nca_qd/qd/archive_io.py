@@ -8,6 +8,13 @@ the notebook) index by cell: :func:`archive_view` gives dense per-cell ``objecti
 :class:`CellRows`, which looks up parameters by cell without materialising the dense
 ``cells x d`` array. Dense files of earlier versions (``genotypes`` of shape ``[cells, d]``)
 still read.
+
+An *elites record* (``elites.npz``, :func:`save_elites_record`) is an archive whose every
+occupied cell keeps its objective, measures and threshold but only a chosen few keep their
+parameters (``kept_cells``, ``kept_genotypes``): a run too large to ship whole (the maze's
+256 x 162 archives of 1,730-parameter generators: 137 MB) ships its archive's figures and its
+best generators in about a megabyte. Its view's ``genotypes`` are :class:`KeptRows`, which name
+the missing cell rather than hand back zeros.
 """
 
 from __future__ import annotations
@@ -58,6 +65,29 @@ class CellRows:
         return dense if dtype is None else dense.astype(dtype)
 
 
+class KeptRows(CellRows):
+    """:class:`CellRows` of an elites record: reading an occupied cell whose parameters the
+    record did not keep is an error (zeros there would be a wrong generator, silently)."""
+
+    def __init__(self, cells: np.ndarray, rows: np.ndarray, occupied: np.ndarray, source: str):
+        super().__init__(cells, rows, occupied.size)
+        self.occupied, self.source = np.asarray(occupied, bool), source
+
+    def __getitem__(self, index: Any) -> np.ndarray:
+        idx = np.asarray(index)
+        flat = np.flatnonzero(idx) if idx.dtype == bool else idx.ravel()
+        if np.all((flat >= 0) & (flat < self.n_cells)):
+            lost = flat[self.occupied[flat] & (self._row_of[flat] < 0)]
+            if lost.size:
+                raise NcaQdError(
+                    f"{self.source} keeps the generators of {self.cells.size} of "
+                    f"{int(self.occupied.sum())} elites, not of cell {int(lost[0])} (kept: the "
+                    "best by objective, ties spread over the archive); re-run the search from "
+                    "its config.yaml to rebuild the whole archive"
+                )
+        return super().__getitem__(index)
+
+
 def grid_centroids_np(cells: Sequence[int], ranges: Sequence[Sequence[float]]) -> np.ndarray:
     """Row-major cell centres (numpy twin of :func:`nca_qd.qd.archive.grid_centroids`)."""
     axes = [(np.arange(c) + 0.5) / c * (r[1] - r[0]) + r[0] for c, r in zip(cells, ranges)]
@@ -82,22 +112,62 @@ def save_archive(
     )
 
 
+def save_elites_record(
+    path: str | Path,
+    elites: Mapping[str, np.ndarray],
+    kept_cells: Sequence[int],
+    grid_cells: Sequence[int],
+    grid_ranges: Sequence[Sequence[float]],
+) -> None:
+    """An elites record (see module docstring): every elite's ``cells``, ``objective``,
+    ``measures`` and ``thresholds``, and the float32 parameters of the elites in ``kept_cells``
+    only, atomically."""
+    cells = np.asarray(elites["cells"], np.int64)
+    kept = np.unique(np.asarray(kept_cells, np.int64))
+    row = np.full(int(np.prod(grid_cells)), -1, np.int64)
+    row[cells] = np.arange(cells.size)
+    if np.any(row[kept] < 0):
+        raise NcaQdError(f"{path}: kept cells {kept[row[kept] < 0][:5].tolist()} hold no elite")
+    save_npz(
+        path,
+        {
+            **{
+                k: np.asarray(elites[k])
+                for k in ("cells", "objective", "measures", "thresholds")
+                if k in elites
+            },
+            "kept_cells": kept,
+            "kept_genotypes": np.asarray(elites["genotypes"], np.float32)[row[kept]],
+            "grid_cells": np.asarray(grid_cells, np.int64),
+            "grid_ranges": np.asarray(grid_ranges, np.float64),
+        },
+    )
+
+
 def archive_view(
     elites: Mapping[str, np.ndarray],
     grid_cells: Sequence[int],
     grid_ranges: Sequence[Sequence[float]] | None = None,
+    source: str = "elites record",
 ) -> dict[str, Any]:
-    """Per-cell arrays of a sparse archive (see module docstring)."""
+    """Per-cell arrays of a sparse archive or of an elites record (see module docstring;
+    ``source`` names a record in its errors)."""
     n = int(np.prod(grid_cells))
     cells = np.asarray(elites["cells"], np.int64)
     objective = np.full(n, -np.inf, np.float32)
     objective[cells] = elites["objective"]
     measures = np.zeros((n, np.asarray(elites["measures"]).shape[1]), np.float32)
     measures[cells] = elites["measures"]
+    if "kept_cells" in elites:
+        genotypes: CellRows = KeptRows(
+            elites["kept_cells"], elites["kept_genotypes"], np.isfinite(objective), source
+        )
+    else:
+        genotypes = CellRows(cells, elites["genotypes"], n)
     view: dict[str, Any] = {
         "objective": objective,
         "measures": measures,
-        "genotypes": CellRows(cells, elites["genotypes"], n),
+        "genotypes": genotypes,
         "cells": cells,
         "grid_cells": np.asarray(grid_cells),
     }
@@ -111,8 +181,8 @@ def archive_view(
 
 
 def read_archive(path: str | Path) -> dict[str, Any]:
-    """An ``archive_*.npz`` as :func:`archive_view` gives it (sparse files) or as written
-    (dense files of earlier versions)."""
+    """An ``archive_*.npz`` or an elites record as :func:`archive_view` gives it (sparse files)
+    or as written (dense files of earlier versions)."""
     try:
         with np.load(path, allow_pickle=False) as data:
             arrays = {k: data[k] for k in data.files}
@@ -123,6 +193,6 @@ def read_archive(path: str | Path) -> dict[str, Any]:
             raise NcaQdError(f"{path}: not an archive (no objective / genotypes)")
         return arrays
     try:
-        return archive_view(arrays, arrays["grid_cells"].tolist(), arrays["grid_ranges"].tolist())
+        return archive_view(arrays, arrays["grid_cells"].tolist(), arrays["grid_ranges"].tolist(), str(path))
     except KeyError as exc:
         raise NcaQdError(f"{path}: archive lacks {exc}") from None
