@@ -475,12 +475,12 @@ class Experiment:
         every picture (:mod:`nca_qd.run_pictures`)."""
         spec = self.loop.spec
         views = {}
+        # A configuration saved before the record existed has no kept_elites: none written.
+        n_kept = int(OmegaConf.select(self.cfg, "output.kept_elites", default=0))
         for which, archive in (("result", state.res_archive), ("opt", state.opt_archive)):
             elites = checkpoint.archive_elites(archive)
             archive_io.save_archive(self.run_dir / f"archive_{which}.npz", elites, spec.cells, spec.ranges)
             views[which] = archive_io.archive_view(elites, spec.cells, spec.ranges)
-            # A configuration saved before the record existed has no kept_elites: none written.
-            n_kept = int(OmegaConf.select(self.cfg, "output.kept_elites", default=0))
             if which == "result" and n_kept:
                 objective = views[which]["objective"]  # kept too: the elites the pictures draw
                 kept = np.union1d(
