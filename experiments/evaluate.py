@@ -31,6 +31,7 @@ from omegaconf import OmegaConf
 
 from experiments.cli import compose_config, main_guard, take_domain
 from nca_qd.errors import NcaQdError
+from nca_qd.preload import preload
 
 INTERRUPTED = (
     "finished exact runs, screened batches and repairs are kept (packed) in "
@@ -46,6 +47,7 @@ def main(argv: list[str]) -> int:
     cfg = compose_config("evaluate", argv)
     if OmegaConf.is_missing(cfg, "run_dir") or not cfg.run_dir:
         raise NcaQdError("give run_dir=<run directory>")
+    preload()  # an evaluation takes hours: later edits to the tree cannot reach it
     result = evaluate(OmegaConf.to_container(cfg, resolve=True), domain_override=domain)
     print(result.summary_markdown, end="", flush=True)
     print(f"\nwritten to {result.out}", flush=True)

@@ -37,6 +37,7 @@ from experiments.simulate import RunSettings, _int, exact_run
 from nca_qd import memory
 from nca_qd.errors import NcaQdError
 from nca_qd.io import atomic_write_text, load_map
+from nca_qd.preload import preload
 from nca_qd.sim.rhcr import PLANNER_KEYS, planner_title
 from nca_qd.sim.scenario import build_scenario, tiles_for
 
@@ -236,6 +237,7 @@ def main(argv: list[str]) -> int:
     out.mkdir(parents=True, exist_ok=True)
     _pin(out, cfg, digests)
     seeds = list(range(first, first + n_runs))
+    preload()  # a sweep takes hours: later edits to the tree cannot reach it
     for stem, mf in maps.items():
         for a in counts:
             path = out / f"{stem}_{a}.jsonl"

@@ -18,6 +18,7 @@ from omegaconf import OmegaConf
 
 from experiments.cli import RESUME_HINT, compose_config, main_guard, merge_overrides
 from nca_qd.errors import NcaQdError, require_bool
+from nca_qd.preload import preload
 
 
 def main(argv: list[str]) -> int:
@@ -45,6 +46,8 @@ def main(argv: list[str]) -> int:
     if ship_only and not resume:
         raise NcaQdError("ship_only=true needs resume=<run dir>")
     cfg.ship_only = False
+    if not ship_only:
+        preload()  # a training takes hours: later edits to the tree cannot reach it
     run = AgentRun(cfg, run_path)
     tree = run.load()[0] if ship_only else run.run(resume=bool(resume))
     print(

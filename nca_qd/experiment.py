@@ -55,6 +55,7 @@ from nca_qd.domains import Domain, make_domain
 from nca_qd.errors import NcaQdError, require_bool
 from nca_qd.io import atomic_write_text, load_pytree
 from nca_qd.pipeline import make_generator, make_objective
+from nca_qd.preload import preload
 from nca_qd.qd import archive_io, checkpoint
 from nca_qd.qd.loop import QDLoop, QDState, archive_spec, make_emitter
 from nca_qd.run_dir import (  # re-exported: readers of a run directory used to find them here
@@ -345,6 +346,7 @@ class Experiment:
     # --- the run -------------------------------------------------------------------------
     def run(self, resume: bool = False) -> QDState:
         """Run (or continue) until ``qd.n_evals`` evaluations; returns the final state."""
+        preload()  # the run reads its source now: later edits to the tree cannot reach it
         self.run_dir.mkdir(parents=True, exist_ok=True)
         # allow_simulator_change and leg_seconds are one invocation's decisions: the saved config
         # never carries them, so a later resume under yet another simulator is refused again and
