@@ -238,6 +238,15 @@ def main(argv: list[str]) -> int:
     _pin(out, cfg, digests)
     seeds = list(range(first, first + n_runs))
     preload()  # a sweep takes hours: later edits to the tree cannot reach it
+    try:
+        _run_missing(cfg, out, maps, counts, seeds, domain)
+    finally:  # an interrupted sweep's summary covers the runs it kept, as a finished one's does
+        write_summary(out, folder_points(out), str(cfg.planner))
+    return 0
+
+
+def _run_missing(cfg: DictConfig, out: Path, maps: dict, counts: list, seeds: list[int], domain: str) -> None:
+    """Every (layout, agents) point's missing seeds, each run kept the moment it ends."""
     for stem, mf in maps.items():
         for a in counts:
             path = out / f"{stem}_{a}.jsonl"
@@ -259,8 +268,6 @@ def main(argv: list[str]) -> int:
                 print(json.dumps({"layout": stem, "agents": a, **record}), flush=True)
 
             run_point(scen, settings, todo, parallel, keep)
-    write_summary(out, folder_points(out), str(cfg.planner))
-    return 0
 
 
 def run_point(scen, settings: RunSettings, seeds: list[int], parallel: int, keep: Callable) -> None:

@@ -168,6 +168,8 @@ def test_sigterm_keeps_every_run_that_ended_and_cancels_the_rest(tmp_path):
     assert proc.returncode == 130 and "finished runs are kept" in err, err
     assert sorted(kept) == sorted(p["seed"] for p in printed)  # every run that ended is on disk
     assert 2 <= len(kept) < 40  # the run under way was kept, the ones not started were cancelled
+    summary = list(csv.DictReader(open(out / "summary.csv")))  # and the summary counts them
+    assert [(r["agents"], r["runs"]) for r in summary] == [("100", str(len(kept)))]
 
 
 def test_a_second_interrupt_drops_the_runs_under_way(monkeypatch, capsys):
