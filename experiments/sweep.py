@@ -36,6 +36,7 @@ from experiments.cli import EXIT_INTERRUPTED, compose_config, main_guard, take_d
 from experiments.simulate import RunSettings, _int, exact_run
 from nca_qd import memory
 from nca_qd.errors import NcaQdError
+from nca_qd.interrupts import deferred_interrupts
 from nca_qd.io import atomic_write_text, load_map
 from nca_qd.preload import preload
 from nca_qd.sim.rhcr import PLANNER_KEYS, planner_title
@@ -276,12 +277,25 @@ def run_point(scen, settings: RunSettings, seeds: list[int], parallel: int, keep
     core cannot abandon, are waited for and kept too, before the interruption goes on. A
     second interruption drops them: a run at 140x500 can take a quarter of an hour, and the
     threads running the core cannot be stopped, so the process ends there (what is on disk
-    stands; the same command runs the dropped ones)."""
+    stands; the same command runs the dropped ones).
+
+    Each run is kept once, whole: the interruption is held while ``keep`` writes and prints
+    it (one that landed between the two left a run on disk that was never reported), and a
+    run that had ended but was not kept yet when the interruption came is kept with the
+    ones under way (it is neither cancellable nor under way)."""
+    kept: set = set()
+
+    def keep_once(f) -> None:
+        with deferred_interrupts():
+            if f not in kept:
+                keep(f.result())
+                kept.add(f)
+
     with ThreadPoolExecutor(max_workers=parallel) as pool:
         futures = [pool.submit(exact_run, scen, settings, seed) for seed in seeds]
         try:
             for f in as_completed(futures):
-                keep(f.result())
+                keep_once(f)
         except KeyboardInterrupt:
             under_way = [f for f in futures if not f.cancel() and not f.done()]
             if under_way:
@@ -292,9 +306,10 @@ def run_point(scen, settings: RunSettings, seeds: list[int], parallel: int, keep
                     flush=True,
                 )
             try:
-                for f in wait(under_way).done:
-                    if f.exception() is None:
-                        keep(f.result())
+                wait(under_way)
+                for f in futures:
+                    if f.done() and not f.cancelled() and f.exception() is None:
+                        keep_once(f)
             except KeyboardInterrupt:
                 print(
                     "interrupted again: the runs under way are dropped, the finished ones kept; "

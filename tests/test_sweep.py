@@ -210,6 +210,32 @@ def test_a_second_interrupt_drops_the_runs_under_way(monkeypatch, capsys):
     assert "waiting for the 2 run(s) under way" in err and "the runs under way are dropped" in err
 
 
+def test_an_interrupt_inside_keep_neither_splits_a_run_nor_loses_a_finished_one(monkeypatch):
+    """The interrupt lands inside ``keep``, between the run's line on disk and its printed
+    line (CI once saw a run on disk that was never printed). It is held until the run is
+    whole, then stops the point: every run that ended (the one being kept, the one that had
+    ended beside it, any under way) is kept once, on disk and printed alike."""
+    import signal
+    import types
+
+    import experiments.sweep as sweep
+
+    monkeypatch.setattr(sweep, "exact_run", lambda scen, settings, seed: types.SimpleNamespace(seed=seed))
+    disk, printed = [], []
+
+    def keep(res):
+        disk.append(res.seed)
+        if len(disk) == 1:
+            signal.raise_signal(signal.SIGINT)  # Python acts on it at the next instruction
+        printed.append(res.seed)
+
+    with pytest.raises(KeyboardInterrupt):
+        sweep.run_point(None, None, list(range(40)), 2, keep)
+    assert disk == printed  # no run split between disk and print
+    assert len(set(disk)) == len(disk) >= 2  # each kept once; the other thread's run kept too
+    assert len(disk) < 40  # the runs not started were cancelled
+
+
 @pytest.mark.parametrize("missing", ["layouts", "agents", "out"])
 def test_a_required_setting_left_out_is_one_line_exit_2(tmp_path, maps, monkeypatch, capsys, missing):
     """The YAML's ``???`` settings: leaving one out names it, exit 2, no traceback."""
