@@ -10,10 +10,18 @@ The per-cell figures are peak resident memory measured on real maps and rounded 
 (docs/benchmarks.md, "Memory against map size"). They are estimates: a check refuses only what
 needs more than the memory available when it starts, and small maps (under ``FLOOR`` bytes)
 are not checked at all, so the search's thousands of small calls never read ``/proc``.
+
+What this process freed counts as available: glibc keeps freed heap memory (the simulators'
+distance tables, ~140 KB each at 140x500, come from the heap once its mmap threshold has
+risen) instead of returning it to the kernel, so a sweep's second point saw its first point's
+gigabytes as taken and refused to start. A check hands such memory back (``malloc_trim``)
+before it reads what is available.
 """
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import os
 
 from nca_qd.errors import NcaQdError
@@ -44,14 +52,29 @@ def available_bytes() -> int:
     return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
 
 
+def release_freed() -> bool:
+    """Return the heap memory this process freed but the C allocator still holds to the kernel
+    (glibc's ``malloc_trim(0)``); False where there is no such call (another C library)."""
+    name = ctypes.util.find_library("c")
+    try:
+        trim = ctypes.CDLL(name).malloc_trim
+    except (OSError, AttributeError, TypeError):
+        return False
+    trim.argtypes, trim.restype = [ctypes.c_size_t], ctypes.c_int
+    trim(0)
+    return True
+
+
 def _gib(n: float) -> str:
     return f"{n / 2**30:.1f} GiB"
 
 
 def check(needed: float, what: str, hint: str = "use a smaller map") -> None:
-    """Raise :class:`NcaQdError` when ``needed`` bytes exceed the memory available now."""
+    """Raise :class:`NcaQdError` when ``needed`` bytes exceed the memory available now (what
+    this process freed counted as available: :func:`release_freed` first)."""
     if needed < FLOOR:
         return
+    release_freed()
     avail = available_bytes()
     if needed > avail:
         raise NcaQdError(
