@@ -21,7 +21,7 @@ before it reads what is available.
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
+import functools
 import os
 
 from nca_qd.errors import NcaQdError
@@ -52,15 +52,23 @@ def available_bytes() -> int:
     return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
 
 
+@functools.cache
+def _malloc_trim():
+    """glibc's ``malloc_trim`` among the symbols this process already has; None elsewhere."""
+    try:
+        trim = ctypes.CDLL(None).malloc_trim
+    except (OSError, AttributeError, TypeError):
+        return None
+    trim.argtypes, trim.restype = [ctypes.c_size_t], ctypes.c_int
+    return trim
+
+
 def release_freed() -> bool:
     """Return the heap memory this process freed but the C allocator still holds to the kernel
     (glibc's ``malloc_trim(0)``); False where there is no such call (another C library)."""
-    name = ctypes.util.find_library("c")
-    try:
-        trim = ctypes.CDLL(name).malloc_trim
-    except (OSError, AttributeError, TypeError):
+    trim = _malloc_trim()
+    if trim is None:
         return False
-    trim.argtypes, trim.restype = [ctypes.c_size_t], ctypes.c_int
     trim(0)
     return True
 

@@ -90,7 +90,7 @@ def test_growing_layouts_checks_the_whole_batch(monkeypatch):
 
 
 _FRAGMENTED_HEAP = """
-import ctypes, ctypes.util, sys
+import ctypes, ctypes.util
 from nca_qd import memory
 
 def rss_kib():
