@@ -487,3 +487,26 @@ def test_a_runs_last_row_is_checked_against_its_elites_record(tmp_path):
     assert read_run(tmp_path / "agrees").values["qd_score"][-1] == 3
     with pytest.raises(NcaQdError, match=r"row \(QD-score 4.00, coverage 0.040000\) is not its elites"):
         read_run(tmp_path / "differs")
+
+
+def test_arms_of_different_budgets_are_also_ranked_at_the_smallest(tmp_path):
+    # CMA-MAE ran 300 evaluations and leads at the end; the reduced arm stopped at 200, where
+    # CMA-MAE's archive (after its last iteration with at most 200: 150) held less than it.
+    _fake_run(tmp_path / "a0", "cma_mae", 0, [(150, 10, 0.1), (300, 90, 0.9)])
+    _fake_run(tmp_path / "a1", "cma_mae", 1, [(150, 20, 0.2), (300, 110, 0.7)])
+    _fake_run(tmp_path / "d0", "dsage", 0, [(100, 12, 0.12), (200, 40, 0.4)])
+    _fake_run(tmp_path / "e0", "dsage", 0, [(100, 1, 0.01)], measures=("entropy", "path_length"))
+    table, _ = compare([tmp_path], tmp_path / "out")
+    final, _, equal = table.partition("## At equal budget")
+    walls = "| maze (n_walls+path_length) |"
+    assert final.index(walls + " cma_mae |") < final.index(walls + " dsage |")
+    assert equal.count("### ") == 1  # the entropy domain has one arm: no section
+    assert "### maze (n_walls+path_length) at 200 evaluations" in equal
+    rows = [line for line in equal.splitlines() if line.startswith("| ") and "---" not in line][1:]
+    assert rows == [
+        "| dsage | 1 | 200 | 40.00 | 0.400 |",
+        "| cma_mae | 2 | 300 | 15.00 ± 5.00 | 0.150 ± 0.050 |",
+    ]
+    # one budget everywhere: no such section
+    table, _ = compare([tmp_path / "a0", tmp_path / "a1"], tmp_path / "out2")
+    assert "At equal budget" not in table
