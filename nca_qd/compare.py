@@ -305,6 +305,15 @@ def qd_against_paper(summary: GroupSummary) -> str:
     return f"differs: QD-score {ours[0] - p_mean:+,.0f} ({gap:+.1f} s.e.)"
 
 
+def _figures(values: dict[str, tuple[float, float]], runs: int) -> str:
+    """QD-score and coverage as two table cells: mean ± s.e., or the figure alone for one run
+    (a single run has no standard error)."""
+    q, c = values["qd_score"], values["coverage"]
+    if runs > 1:
+        return f"{q[0]:,.2f} ± {q[1]:,.2f} | {c[0]:.3f} ± {c[1]:.3f}"
+    return f"{q[0]:,.2f} | {c[0]:.3f}"
+
+
 def table_markdown(summaries: Sequence[GroupSummary]) -> str:
     """The paper's appendix table: domain, algorithm, runs, evaluations, QD-score, coverage,
     and the paper's figures for the same domain and algorithm (— where it has none;
@@ -316,11 +325,7 @@ def table_markdown(summaries: Sequence[GroupSummary]) -> str:
     ]
     for s in summaries:
         seeds = ",".join(str(r.seed) for r in sorted(s.runs, key=lambda r: r.seed))
-        q, c = s.final["qd_score"], s.final["coverage"]
-        if len(s.runs) > 1:
-            ours = f"{q[0]:,.2f} ± {q[1]:,.2f} | {c[0]:.3f} ± {c[1]:.3f}"
-        else:
-            ours = f"{q[0]:,.2f} | {c[0]:.3f}"
+        ours = _figures(s.final, len(s.runs))
         lines.append(
             f"| {s.group[0]} | {s.group[1]} | {len(s.runs)} ({seeds}) | {s.evaluations:,.0f} "
             f"| {ours} | {paper_row(s.group, s.evaluations)} | {qd_against_paper(s)} |"
@@ -329,7 +334,7 @@ def table_markdown(summaries: Sequence[GroupSummary]) -> str:
 
 
 def equal_budget_markdown(summaries: Sequence[GroupSummary]) -> str:
-    """Where a domain's arms ran different budgets (a reduced DSAGE of 10,000 evaluations beside
+    """Where a domain's arms ran different budgets (a reduced DSAGE of 5,000 evaluations beside
     searches of 100,000), every arm of that domain at the smallest one: what its archive held
     after its last iteration with at most that many evaluations, mean ± s.e. over its runs,
     best first. Final figures at different budgets do not rank algorithms; these do. "" where
@@ -354,12 +359,7 @@ def equal_budget_markdown(summaries: Sequence[GroupSummary]) -> str:
             "|---|---|---|---|---|",
         ]
         for _, s, at in sorted(rows, key=lambda row: -row[0]):
-            q, c = at["qd_score"], at["coverage"]
-            ours = (
-                f"{q[0]:,.2f} ± {q[1]:,.2f} | {c[0]:.3f} ± {c[1]:.3f}"
-                if len(s.runs) > 1
-                else f"{q[0]:,.2f} | {c[0]:.3f}"
-            )
+            ours = _figures(at, len(s.runs))
             lines.append(f"| {s.group[1]} | {len(s.runs)} | {s.evaluations:,.0f} | {ours} |")
         sections.append("\n".join(lines))
     if not sections:
