@@ -17,6 +17,7 @@ Prints
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import tempfile
 import time
@@ -45,10 +46,7 @@ def sphere_resumed(
 ) -> tuple[float, float, list[dict]]:
     """Normalised QD-score of the sphere run uninterrupted and resumed ``resumes`` times from
     checkpoints (evenly spaced), same seed; plus covariance figures at the ``probe`` iterations."""
-    spec = sphere_spec(n=dim)
-    obj = sphere_batch_objective()
-    emitter = ESEmitters(n_emitters, batch, dim, 0.5)
-    loop = QDLoop(emitter, obj, dim, spec)
+    spec, emitter, loop = _sphere_loop(dim, n_emitters, batch)
     n_cells = int(np.prod(spec.cells))
     stops = {round(iters * (k + 1) / (resumes + 1)) for k in range(resumes)}
     drift: list[dict] = []
@@ -68,6 +66,15 @@ def sphere_resumed(
         return normalised_qd_score(metrics["qd_score"], n_cells)
 
     return run(False), run(True), drift
+
+
+@functools.lru_cache(maxsize=4)
+def _sphere_loop(dim: int, n_emitters: int, batch: int) -> tuple:
+    """One loop per shape, so runs that differ only in seed share its jitted programs (the
+    loop is stateless: state in, state out)."""
+    spec = sphere_spec(n=dim)
+    emitter = ESEmitters(n_emitters, batch, dim, 0.5)
+    return spec, emitter, QDLoop(emitter, sphere_batch_objective(), dim, spec)
 
 
 def covariance_figures(state, iteration: int) -> dict:
