@@ -2,7 +2,7 @@
 
 python -m benchmarks.run_all [section ...]
 
-sections: foundation, rhcr, work_cap, repair, screen, search, checkpoint, dsage
+sections: foundation, maze_rollout, rhcr, work_cap, repair, screen, search, checkpoint, dsage
 """
 
 from __future__ import annotations
@@ -12,7 +12,17 @@ import inspect
 import sys
 import time
 
-SECTIONS = ["foundation", "rhcr", "work_cap", "repair", "screen", "search", "checkpoint", "dsage"]
+SECTIONS = [
+    "foundation",
+    "maze_rollout",
+    "rhcr",
+    "work_cap",
+    "repair",
+    "screen",
+    "search",
+    "checkpoint",
+    "dsage",
+]
 
 
 def main(argv: list[str]) -> int:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections import deque
+from functools import partial
 
 import jax
 import jax.numpy as jnp
@@ -380,3 +381,40 @@ def test_cycle_detection_does_not_change_results():
         np.testing.assert_array_equal(res.lengths, np.asarray(plain.lengths[i]))
         np.testing.assert_array_equal(res.reached, np.asarray(plain.reached[i]))
     assert not res.reached.any() and (res.lengths == 648).all()  # the room
+
+
+@pytest.mark.parametrize(("kind", "horizon"), [("learned", 40), ("wall_follower", 160)])
+def test_staged_rollouts_give_the_unstaged_loops_results(kind, horizon, monkeypatch):
+    """rollout_batch gathers the agents still walking into fewer rows as episodes end; the
+    lengths, goals and visits are the single loop's over all rows (staging off), bit for bit,
+    and episode 0 of each maze is what record_episode (a scan of that episode alone) gives."""
+    rng = np.random.default_rng(11)
+    regions = (rng.random((6, 16, 16)) < np.linspace(0.05, 0.7, 6)[:, None, None]).astype(np.int32)
+    layouts = jnp.asarray(np.pad(regions, ((0, 0), (1, 1), (1, 1)), constant_values=1))
+    length, start, goal = _lsp(layouts == 0)
+    active = (length > 0) & (jnp.arange(6) != 2)  # maze 2 inactive: no episode walks
+    keys = jax.random.split(jax.random.PRNGKey(7), 6)
+    policy = ma.get_policy(kind)
+    visits = kind == "learned"  # cycle detection (the wall follower's) cannot count visits
+
+    def run(floor, minimum):
+        monkeypatch.setattr(ma, "STAGE_FLOOR", floor)
+        monkeypatch.setattr(ma, "STAGE_MIN", minimum)
+        f = jax.jit(lambda *a: ma.rollout_batch(policy, *a, 20, horizon, active, count_visits=visits))
+        return f(layouts, start, goal, keys)
+
+    assert ma._stage_sizes(120) == [120]  # the defaults: too few agents to stage
+    monkeypatch.setattr(ma, "STAGE_MIN", 8)
+    assert ma._stage_sizes(120) == [120, 60, 30, 15, 8]
+    staged, single = run(16, 8), run(1, 8)
+    lengths = np.asarray(staged.lengths)
+    assert 0 < (lengths < horizon).mean() < 1  # some episodes end early, some run to the horizon
+    np.testing.assert_array_equal(lengths, np.asarray(single.lengths))
+    np.testing.assert_array_equal(np.asarray(staged.reached), np.asarray(single.reached))
+    if visits:
+        np.testing.assert_array_equal(np.asarray(staged.visits), np.asarray(single.visits))
+        assert np.asarray(staged.visits).sum() == np.where(np.asarray(active)[:, None], lengths, 0).sum()
+    record = jax.jit(partial(ma.record_episode, policy, episodes=20, horizon=horizon))
+    for i in np.flatnonzero(np.asarray(active)):
+        assert int(record(layouts[i], start[i], goal[i], keys[i])[2]) == lengths[i, 0]
+    assert (lengths[~np.asarray(active)] == horizon).all()

@@ -35,12 +35,14 @@ constructors), ``learned``, the trained agent of :mod:`nca_qd.agent`, and ``pape
 named by module path and imported only when chosen (so this module depends on no agent package;
 the agent package depends on this one). :func:`register_policy` adds more at run time.
 :func:`rollout` runs ``E`` episodes of one maze (vmapped over episodes, one
-``lax.while_loop`` over time that stops when every episode is done); vmap it over mazes.
+``lax.while_loop`` over time that stops when every episode is done); :func:`rollout_batch` runs
+many mazes at once, in stages that shed the finished episodes.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import partial
 from typing import Any, NamedTuple
 
 import jax
@@ -388,9 +390,14 @@ def rollout_batch(
     """:func:`rollout` of ``B`` mazes at once: ``layouts [B, H, W]``, ``starts``/``goals`` ``[B, 2]``,
     ``keys [B]``, ``active [B]`` -> lengths and reached ``[B, episodes]``.
 
-    One ``lax.while_loop`` over time for all ``B x episodes`` agents (stepping vmapped over
-    episodes, then mazes) that stops when every episode is done or at the horizon; cheaper than
-    vmapping :func:`rollout`, whose batched loop predicate would add a select per carry.
+    The ``B x episodes`` agents step together (one row each, vmapped), each with its own maze,
+    key and the shared clock, until every episode is done or the horizon. A step costs every row
+    whether its agent still walks or not, and a search's batch has a long tail (most episodes end
+    early, a few run to the horizon), so the rows are staged: whenever the agents still walking
+    fit in half the rows, they are gathered there and the loop goes on at half the size (see
+    :data:`STAGE_FLOOR`). An agent's steps do not depend on the rows beside it, so the results
+    are those of one loop over the whole batch, bit for bit (tests/test_maze.py), in about half
+    the time on a search's batch (docs/benchmarks.md).
 
     With a ``deterministic`` policy and ``detect_cycles``, Brent-style cycle detection (the
     (state, memory) of every episode is saved at t = 1, 2, 4, 8, ...; meeting it again means a
@@ -410,52 +417,99 @@ def rollout_batch(
         return policy.rollout(layouts, starts, goals, keys, episodes, horizon, active)
     envs = jax.vmap(make_env)(layouts, goals)
     envs = envs._replace(aux=jax.vmap(policy.prepare)(envs.layout, envs.goal))
-    ep_keys = jax.vmap(lambda k: jax.random.split(k, episodes))(keys)  # [B, E]
-    init_one = lambda k, s: _episode_init(policy, k, s)  # noqa: E731
-    state, memory, k_steps = jax.vmap(jax.vmap(init_one, in_axes=(0, None)))(ep_keys, starts)
-    at_goal = jnp.all(state.pos == envs.goal[:, None, :], axis=-1) & active[:, None]
-    lengths = jnp.where(at_goal, 0, horizon).astype(jnp.int32)
-    done = at_goal | ~active[:, None]
-
-    def step_one(env, s, m, k, t):
-        return _episode_step(policy, env, s, m, k, t)
-
-    step_all = jax.vmap(jax.vmap(step_one, in_axes=(None, 0, 0, 0, None)), in_axes=(0, 0, 0, 0, None))
-
+    n = b * episodes
+    maze = jnp.repeat(jnp.arange(b, dtype=jnp.int32), episodes)  # agent i plays maze i // E
+    ep_keys = jax.vmap(lambda k: jax.random.split(k, episodes))(keys).reshape((n,) + keys.shape[1:])
+    state, memory, k_steps = jax.vmap(lambda k, s: _episode_init(policy, k, s))(ep_keys, starts[maze])
+    at_goal = jnp.all(state.pos == envs.goal[maze], axis=-1) & active[maze]
     detect = bool(detect_cycles and policy.deterministic and not count_visits)
+    agents = _Agents(
+        jnp.arange(n, dtype=jnp.int32),
+        jax.tree.map(lambda a: a[maze], envs),
+        state,
+        memory,
+        k_steps,
+        at_goal | ~active[maze],
+        at_goal,
+        jnp.where(at_goal, 0, horizon).astype(jnp.int32),
+        (state, memory) if detect else None,
+    )
     h, w = layouts.shape[1:]
-    b_idx = jnp.broadcast_to(jnp.arange(b)[:, None], (b, episodes))
+    visits = jnp.zeros((b, h, w), jnp.float32) if count_visits else None
+    lengths, hit = jnp.full((n,), horizon, jnp.int32), jnp.zeros((n,), bool)
+    t = jnp.array(0, jnp.int32)
+    sizes = _stage_sizes(n)
+    for k, size in enumerate(sizes):
+        if size < agents.index.shape[0]:  # the live agents first (stable), then keep ``size``
+            order = jnp.argsort(agents.done, stable=True)[:size]
+            agents = jax.tree.map(lambda a, o=order: a[o], agents)
+        below = sizes[k + 1] if k + 1 < len(sizes) else 0
+        t, agents, visits = _run_stage(policy, agents, visits, t, horizon, below, detect, episodes)
+        lengths = lengths.at[agents.index].set(agents.lengths)
+        hit = hit.at[agents.index].set(agents.hit)
+    return Rollout(lengths.reshape(b, episodes), hit.reshape(b, episodes), visits)
 
-    def count(visits, pos, live):
-        return visits.at[b_idx, pos[..., 0], pos[..., 1]].add(live.astype(jnp.float32))
+
+class _Agents(NamedTuple):
+    """The agents a rollout stage steps, one row each (a stage keeps a prefix of the rows)."""
+
+    index: jax.Array  # [n] int32: agent i = maze i // E, episode i % E
+    env: MazeEnv  # [n, ...]: its maze
+    state: AgentState
+    memory: Any
+    k_steps: jax.Array
+    done: jax.Array  # [n] bool: at the goal, out of time, in a cycle, or an inactive maze
+    hit: jax.Array  # [n] bool: reached the goal
+    lengths: jax.Array  # [n] int32
+    saved: Any  # (state, memory) saved for cycle detection, or None
+
+
+# Stages of a rollout: the agents still walking are gathered into half as many rows whenever
+# they fit, down to a sixteenth of the batch (at least 64 rows): each stage is one more loop
+# to compile, and the last few slow episodes no longer cost a step of the whole batch.
+STAGE_FLOOR, STAGE_MIN = 16, 64
+
+
+def _stage_sizes(n: int) -> list[int]:
+    sizes = [n]
+    while -(-sizes[-1] // 2) >= max(STAGE_MIN, -(-n // STAGE_FLOOR)):
+        sizes.append(-(-sizes[-1] // 2))
+    return sizes
+
+
+def _run_stage(policy, agents: _Agents, visits, t, horizon: int, below: int, detect: bool, episodes: int):
+    """Step ``agents`` until the horizon, until all are done, or until at most ``below`` walk.
+
+    Per agent the same steps as one episode alone: its key, its maze, its clock ``t``."""
+    step_all = jax.vmap(partial(_episode_step, policy), in_axes=(0, 0, 0, 0, None))
 
     def cond(c):
-        return (c[0] < horizon) & ~jnp.all(c[3])
+        t, a, _ = c
+        return (t < horizon) & (jnp.sum(~a.done) > below)
 
     def body(c):
-        t, state, memory, done, hit, lengths, saved, visits = c
-        if count_visits:  # where each live agent stands before it acts (as DSAGE counts)
-            visits = count(visits, state.pos, ~done)
-        state, memory = step_all(envs, state, memory, k_steps, t)
-        reached = jnp.all(state.pos == envs.goal[:, None, :], axis=-1) & ~done
-        lengths = jnp.where(reached, t + 1, lengths)
-        done, hit = done | reached, hit | reached
+        t, a, visits = c
+        if visits is not None:  # where each live agent stands before it acts (as DSAGE counts)
+            live = (~a.done).astype(jnp.float32)
+            visits = visits.at[a.index // episodes, a.state.pos[:, 0], a.state.pos[:, 1]].add(live)
+        state, memory = step_all(a.env, a.state, a.memory, a.k_steps, t)
+        reached = jnp.all(state.pos == a.env.goal, axis=-1) & ~a.done
+        lengths = jnp.where(reached, t + 1, a.lengths)
+        done, hit = a.done | reached, a.hit | reached
+        saved = a.saved
         if detect:
             same = [
-                jnp.all((a == b).reshape(a.shape[:2] + (-1,)), axis=-1)
-                for a, b in zip(jax.tree.leaves((state, memory)), jax.tree.leaves(saved))
+                jnp.all((x == y).reshape(x.shape[:1] + (-1,)), axis=-1)
+                for x, y in zip(jax.tree.leaves((state, memory)), jax.tree.leaves(saved))
             ]
             done = done | jnp.all(jnp.stack(same), axis=0)  # a cycle: never reaches the goal
             t1 = t + 1
             checkpoint = (t1 & (t1 - 1)) == 0  # t + 1 is a power of two
             saved = jax.tree.map(lambda new, old: jnp.where(checkpoint, new, old), (state, memory), saved)
-        return t + 1, state, memory, done, hit, lengths, saved, visits
+        a = a._replace(state=state, memory=memory, done=done, hit=hit, lengths=lengths, saved=saved)
+        return t + 1, a, visits
 
-    saved = (state, memory) if detect else None
-    visits = jnp.zeros((b, h, w), jnp.float32) if count_visits else None
-    init = (jnp.array(0, jnp.int32), state, memory, done, at_goal, lengths, saved, visits)
-    _, _, _, _, hit, lengths, _, visits = jax.lax.while_loop(cond, body, init)
-    return Rollout(lengths, hit, visits)
+    return jax.lax.while_loop(cond, body, (t, agents, visits))
 
 
 def record_episode(
