@@ -13,8 +13,10 @@ batch of both and whether their episode lengths, goals and (DSAGE's) visits are 
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from functools import partial
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -72,9 +74,18 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--runs", default=RUNS)
     args = ap.parse_args(argv)
+    batches = []
     for item in args.runs.split(","):
-        run, sigma, *rest = item.split(":")
-        visits = rest == ["visits"]
+        run, _, rest = item.partition(":")
+        sigma, _, flag = rest.partition(":")
+        try:
+            sigma_value = float(sigma)
+        except ValueError:
+            sigma_value = -1.0
+        if not Path(run, "elites.npz").is_file() or sigma_value < 0 or flag not in ("", "visits"):
+            sys.exit(f"error: --runs takes <run>:<sigma>[:visits], the run with an elites.npz; got {item!r}")
+        batches.append((run, sigma, flag == "visits"))
+    for run, sigma, visits in batches:
         regions = search_batch(run, float(sigma))
         out, secs = {}, {}
         for staged in (False, True):
