@@ -75,10 +75,10 @@ def main(argv: list[str] | None = None) -> None:
             sigma_value = -1.0
         if not Path(run, "elites.npz").is_file() or sigma_value < 0 or flag not in ("", "visits"):
             sys.exit(f"error: --runs takes <run>:<sigma>[:visits], the run with an elites.npz; got {item!r}")
-        batches.append((run, sigma, flag == "visits"))
+        batches.append((run, sigma_value, flag == "visits"))
     domain = make_domain(compose_config("run", ["domain=maze", "qd.progress=false"]).domain)
     for run, sigma, visits in batches:
-        regions = search_batch(domain, run, float(sigma))
+        regions = search_batch(domain, run, sigma)
         out, secs = {}, {}
         for staged in (False, True):
             score = scorer(domain, staged, visits)
